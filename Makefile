@@ -1,0 +1,17 @@
+# The two entry points of the README: `make demo` and `make test`.
+VENV ?= .venv
+BIN := $(VENV)/bin
+
+.PHONY: setup demo test bench clean
+
+setup:
+	@scripts/setup.sh
+
+demo: setup
+	$(BIN)/ssga variants --list
+
+test: setup
+	SSGA_STRICT_PLUGINS=1 $(BIN)/python -m pytest -q
+
+clean:
+	rm -rf $(VENV) .pytest_cache

@@ -1,0 +1,1 @@
+"""A regular-grid scene parser for ssga (an example plugin)."""

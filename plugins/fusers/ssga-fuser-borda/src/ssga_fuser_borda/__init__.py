@@ -1,0 +1,1 @@
+"""Borda-count and mean-probability fusion for ssga."""

@@ -1,0 +1,54 @@
+#!/usr/bin/env bash
+# Create (or update) the project's virtual environment with ssga-core and every plugin
+# installed editable. Idempotent: a second run with nothing changed does nothing.
+#
+#   VENV=.venv          where the environment lives
+#   PYTHON=python3      the interpreter to build it from (3.11 or newer)
+#   VENV_FLAGS=         e.g. --system-site-packages to reuse a CUDA torch already installed
+#
+# torch: if the environment has none, torch==2.13.0 is installed (the CPU build where a
+# local wheel is provided). Every later install is constrained to the torch that is
+# present, so no dependency can pull another torch (and gigabytes of CUDA packages).
+set -euo pipefail
+shopt -s nullglob
+cd "$(dirname "$0")/.."
+
+VENV=${VENV:-.venv}
+PYTHON=${PYTHON:-python3}
+TORCH_SPEC=${TORCH_SPEC:-torch==2.13.0}
+
+packages=(ssga_core plugins/*/*/ examples/*/)
+stamp="$VENV/.ssga-installed"
+
+# Re-install only when a package's metadata (dependencies, entry points) or this script changed.
+if [ -f "$stamp" ] && [ -z "$(find scripts/setup.sh requirements-dev.txt "${packages[@]/%//pyproject.toml}" -newer "$stamp" 2>/dev/null)" ]; then
+    exit 0
+fi
+
+if [ ! -x "$VENV/bin/python" ]; then
+    "$PYTHON" -c 'import sys; sys.exit(sys.version_info < (3, 11))' \
+        || { echo "setup: $PYTHON is $("$PYTHON" -V 2>&1); ssga needs Python 3.11 or newer (set PYTHON=...)" >&2; exit 1; }
+    echo "setup: creating $VENV"
+    # shellcheck disable=SC2086
+    "$PYTHON" -m venv ${VENV_FLAGS:-} "$VENV"
+fi
+py="$VENV/bin/python"
+log="$VENV/setup.log"
+: > "$log"
+# pip's chatter goes to the log, which is shown only if an install fails.
+pip() { "$py" -m pip install --disable-pip-version-check "$@" >> "$log" 2>&1 || { cat "$log" >&2; echo "setup: pip install failed (log: $log)" >&2; exit 1; }; }
+
+if ! "$py" -c 'import torch' 2>/dev/null; then
+    echo "setup: installing $TORCH_SPEC"
+    pip "$TORCH_SPEC"
+fi
+constraints="$VENV/ssga-constraints.txt"
+"$py" -c 'import torch; print(f"torch=={torch.__version__}")' > "$constraints"
+
+echo "setup: installing ssga-core and ${#packages[@]} packages (editable)"
+pip -c "$constraints" hatchling editables
+editables=()
+for p in "${packages[@]}"; do editables+=(-e "$p"); done
+pip -c "$constraints" --no-build-isolation "${editables[@]}" -r requirements-dev.txt
+touch "$stamp"
+echo "setup: done ($("$py" -c 'import torch; print("torch", torch.__version__)'))"

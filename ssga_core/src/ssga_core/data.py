@@ -1,0 +1,320 @@
+"""The data that flows between stages: views, regions, local features, synthetic views, scene graphs.
+
+All are frozen dataclasses over numpy arrays, validated on construction so a stage that
+hands on a wrong-shaped array fails at the hand-over with a message naming the field,
+not three stages later. Pixel and frame conventions are those of :mod:`ssga_core.geometry`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from enum import Enum
+from typing import ClassVar
+
+import numpy as np
+
+from ssga_core.errors import InputError
+from ssga_core.geometry import Camera, Pose
+
+
+class Data(str, Enum):
+    """What a stage consumes or produces; used to check a bound variant before it runs."""
+
+    RGB = "rgb"
+    DEPTH = "depth"
+    """Metric planar z-depth, per pixel."""
+    SEMANTIC = "semantic"
+    """Per-pixel semantic category and instance ids, as a semantic sensor gives."""
+    REGIONS = "regions"
+    LOCAL_FEATURES = "local-features"
+    """Features at pixel positions, grouped into nodes afterwards; a synthesizer's point map can move them."""
+    REGION_FEATURES = "region-features"
+    """Features of given regions only (the image, or a region's pixels)."""
+    POINT_MAP = "point-map"
+    """Where each source pixel lands in a synthetic view."""
+
+    def __str__(self) -> str:
+        return self.value
+
+
+VIEW_DATA = frozenset({Data.RGB, Data.DEPTH, Data.SEMANTIC})
+"""The kinds of data a :class:`View` can carry."""
+
+
+def _check_array(name: str, a: object, shape: tuple[int, ...], dtypes: tuple[type, ...]) -> np.ndarray:
+    if not isinstance(a, np.ndarray):
+        raise InputError(f"{name}: expected a numpy array of shape {shape}, got {type(a).__name__}")
+    if a.shape != shape or not any(np.issubdtype(a.dtype, d) for d in dtypes):
+        want = "/".join(np.dtype(d).name if d not in (np.integer, np.floating) else d.__name__ for d in dtypes)
+        raise InputError(f"{name}: expected shape {shape} of {want}, got shape {a.shape} of {a.dtype}")
+    return a
+
+
+@dataclass(frozen=True, eq=False)
+class View:
+    """One image of a place, with where it was taken from.
+
+    Attributes:
+        rgb: ``(H, W, 3)`` uint8.
+        pose: the camera's pose.
+        camera: intrinsics; ``(H, W)`` must match ``camera.shape``.
+        depth: optional ``(H, W)`` float32 metric planar z-depth; ``<= 0`` or
+            non-finite means unknown (holes in a synthetic view, sky, no return).
+        semantic: optional ``(H, W)`` int32 semantic category ids; ``-1`` unknown.
+        instance: optional ``(H, W)`` int32 instance ids; ``-1`` unknown.
+        synthetic: whether the view was rendered by a synthesizer from another view.
+    """
+
+    rgb: np.ndarray
+    pose: Pose
+    camera: Camera = field(default_factory=Camera)
+    depth: np.ndarray | None = None
+    semantic: np.ndarray | None = None
+    instance: np.ndarray | None = None
+    synthetic: bool = False
+
+    def __post_init__(self) -> None:
+        h, w = self.camera.shape
+        _check_array("View.rgb", self.rgb, (h, w, 3), (np.uint8,))
+        if self.depth is not None:
+            _check_array("View.depth", self.depth, (h, w), (np.floating,))
+        for name in ("semantic", "instance"):
+            ids = getattr(self, name)
+            if ids is not None:
+                _check_array(f"View.{name}", ids, (h, w), (np.integer,))
+
+    @property
+    def available(self) -> frozenset[Data]:
+        """The :class:`Data` this view carries."""
+        have = {Data.RGB}
+        if self.depth is not None:
+            have.add(Data.DEPTH)
+        if self.semantic is not None or self.instance is not None:
+            have.add(Data.SEMANTIC)
+        return frozenset(have)
+
+    def valid_depth(self) -> np.ndarray:
+        """``(H, W)`` bool: where depth is known."""
+        if self.depth is None:
+            return np.zeros(self.camera.shape, dtype=bool)
+        return np.isfinite(self.depth) & (self.depth > 0)
+
+
+def boxes_from_labels(labels: np.ndarray, count: int) -> np.ndarray:
+    """``(count, 4)`` bounding boxes ``[u0, v0, u1, v1]`` (inclusive pixel centres) of each label.
+
+    Labels with no pixel get NaN boxes.
+    """
+    boxes = np.full((count, 4), np.nan, dtype=np.float32)
+    if count == 0:
+        return boxes
+    v, u = np.nonzero(labels >= 0)
+    lab = labels[v, u]
+    boxes[:, 0] = _group_reduce(np.minimum, lab, u, count, np.inf)
+    boxes[:, 1] = _group_reduce(np.minimum, lab, v, count, np.inf)
+    boxes[:, 2] = _group_reduce(np.maximum, lab, u, count, -np.inf)
+    boxes[:, 3] = _group_reduce(np.maximum, lab, v, count, -np.inf)
+    boxes[~np.isfinite(boxes)] = np.nan
+    return boxes
+
+
+def _group_reduce(ufunc: np.ufunc, groups: np.ndarray, values: np.ndarray, count: int, init: float) -> np.ndarray:
+    out = np.full(count, init, dtype=np.float64)
+    ufunc.at(out, groups, values)
+    return out
+
+
+@dataclass(frozen=True, eq=False)
+class Regions:
+    """The regions a parser cut an image into: scene-graph part nodes.
+
+    A label map rather than one mask per region: it is what segmenters and
+    superpixel methods produce, it costs one int per pixel whatever the count,
+    and a synthesizer's point map warps it in one pass. Region ``k``'s mask is
+    ``labels == k``; parsers whose regions overlap (boxes from a detector) assign
+    each pixel to one region.
+
+    Attributes:
+        labels: ``(H, W)`` int32, the region of each pixel, ``-1`` for none.
+        boxes: ``(K, 4)`` float32 ``[u0, v0, u1, v1]`` in pixel-centre coordinates,
+            inclusive. By default the bounding box of the mask; a detector may give
+            its own, and a synthesizer moves them with the point map.
+        categories: optional ``(K,)`` int32 semantic category of each region.
+    """
+
+    labels: np.ndarray
+    boxes: np.ndarray
+    categories: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.labels, np.ndarray) or self.labels.ndim != 2:
+            raise InputError(f"Regions.labels: expected an (H, W) int array, got {getattr(self.labels, 'shape', self.labels)!r}")
+        _check_array("Regions.labels", self.labels, self.labels.shape, (np.integer,))
+        k = len(self.boxes) if isinstance(self.boxes, np.ndarray) else -1
+        _check_array("Regions.boxes", self.boxes, (k, 4), (np.floating,))
+        if self.labels.size and self.labels.max(initial=-1) >= k:
+            raise InputError(f"Regions.labels: label {int(self.labels.max())} has no box (there are {k} boxes)")
+        if self.categories is not None:
+            _check_array("Regions.categories", self.categories, (k,), (np.integer,))
+
+    @classmethod
+    def from_labels(cls, labels: np.ndarray, categories: np.ndarray | None = None) -> Regions:
+        """Regions from a label map, renumbering labels to ``0..K-1`` and dropping empty ones.
+
+        ``categories``, if given, is indexed by the *original* label values.
+        """
+        labels = np.asarray(labels)
+        present = np.unique(labels[labels >= 0])
+        lut = np.full(int(present.max(initial=-1)) + 2, -1, dtype=np.int32)
+        lut[present] = np.arange(len(present), dtype=np.int32)
+        dense = np.where(labels >= 0, lut[np.clip(labels, 0, None)], -1).astype(np.int32)
+        cats = None if categories is None else np.asarray(categories, dtype=np.int32)[present]
+        return cls(labels=dense, boxes=boxes_from_labels(dense, len(present)), categories=cats)
+
+    def __len__(self) -> int:
+        return len(self.boxes)
+
+    def mask(self, k: int) -> np.ndarray:
+        return self.labels == k
+
+    def centroids(self) -> np.ndarray:
+        """``(K, 2)`` mean ``(u, v)`` of each region's pixels (NaN for empty ones)."""
+        v, u = np.nonzero(self.labels >= 0)
+        lab = self.labels[v, u]
+        n = np.bincount(lab, minlength=len(self)).astype(np.float64)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            cu = np.bincount(lab, weights=u, minlength=len(self)) / n
+            cv = np.bincount(lab, weights=v, minlength=len(self)) / n
+        return np.stack([cu, cv], axis=-1).astype(np.float32)
+
+    def select(self, keep: np.ndarray) -> Regions:
+        """The regions where ``keep`` (a ``(K,)`` bool) is true, renumbered in order."""
+        keep = np.asarray(keep, dtype=bool)
+        lut = np.full(len(self) + 1, -1, dtype=np.int32)
+        lut[np.flatnonzero(keep)] = np.arange(int(keep.sum()), dtype=np.int32)
+        labels = lut[np.where(self.labels >= 0, self.labels, len(self))]
+        cats = None if self.categories is None else self.categories[keep]
+        return Regions(labels=labels, boxes=self.boxes[keep], categories=cats)
+
+
+@dataclass(frozen=True, eq=False)
+class LocalFeatures:
+    """Features at pixel positions (e.g. 144 dense SIFT or Patch-NetVLAD patches).
+
+    Attributes:
+        positions: ``(M, 2)`` float32 ``(u, v)`` of each feature's centre.
+        descriptors: ``(M, D)`` float32.
+    """
+
+    positions: np.ndarray
+    descriptors: np.ndarray
+
+    def __post_init__(self) -> None:
+        m = len(self.positions) if isinstance(self.positions, np.ndarray) else -1
+        _check_array("LocalFeatures.positions", self.positions, (m, 2), (np.floating,))
+        d = self.descriptors.shape[1] if isinstance(self.descriptors, np.ndarray) and self.descriptors.ndim == 2 else -1
+        _check_array("LocalFeatures.descriptors", self.descriptors, (m, d), (np.floating,))
+
+    def __len__(self) -> int:
+        return len(self.positions)
+
+    def select(self, keep: np.ndarray) -> LocalFeatures:
+        return LocalFeatures(positions=self.positions[keep], descriptors=self.descriptors[keep])
+
+
+@dataclass(frozen=True, eq=False)
+class Synthesis:
+    """A synthetic view rendered from a source view, with the point map that made it.
+
+    The point map is dense: for every *source* pixel, where it lands in the target
+    image. It is what carries scene-graph node boxes (centroid and corners, paper
+    §3.2) and local-feature positions from the real view into the synthetic one.
+
+    Attributes:
+        view: the synthetic view at the target pose (``synthetic=True``).
+        target_uv: ``(H, W, 2)`` float32, each source pixel's position in the target
+            image; NaN where the source depth is unknown or the point is behind the
+            target camera. Positions outside the image are kept (box corners may be).
+        visible: ``(H, W)`` bool, the source pixel lands inside the target image and
+            is the front-most surface there (it won the z-buffer).
+    """
+
+    view: View
+    target_uv: np.ndarray
+    visible: np.ndarray
+
+    def __post_init__(self) -> None:
+        h, w = self.view.camera.shape
+        src = self.target_uv.shape[:2] if isinstance(self.target_uv, np.ndarray) else None
+        if src is None or self.target_uv.ndim != 3:
+            raise InputError(f"Synthesis.target_uv: expected an (H, W, 2) float array, got {src!r}")
+        _check_array("Synthesis.target_uv", self.target_uv, (*src, 2), (np.floating,))
+        _check_array("Synthesis.visible", self.visible, src, (np.bool_,))
+        del h, w  # the source and target images may differ in size
+
+    def map_points(self, uv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Carry source pixel positions ``(N, 2)`` into the target image.
+
+        Each point takes the mapping of its nearest source pixel.
+
+        Returns:
+            ``(N, 2)`` target positions (NaN where unknown) and ``(N,)`` visibility.
+        """
+        sh, sw = self.visible.shape
+        uv = np.asarray(uv, dtype=np.float32).reshape(-1, 2)
+        col = np.clip(np.rint(uv[:, 0]), 0, sw - 1).astype(np.intp)
+        row = np.clip(np.rint(uv[:, 1]), 0, sh - 1).astype(np.intp)
+        return self.target_uv[row, col], self.visible[row, col]
+
+    def warp_labels(self, labels: np.ndarray) -> np.ndarray:
+        """Forward-splat a per-pixel int label map of the source into the target (``-1`` where nothing lands)."""
+        th, tw = self.view.camera.shape
+        out = np.full((th, tw), -1, dtype=np.int32)
+        src = self.visible & (labels >= 0)
+        tgt = np.rint(self.target_uv[src]).astype(np.intp)
+        out[tgt[:, 1], tgt[:, 0]] = labels[src]
+        return out
+
+
+@dataclass(frozen=True, eq=False)
+class SceneGraph:
+    """A scene graph ready for the GCN.
+
+    Node 0 is always the whole image (``WHOLE_IMAGE``); nodes ``1..K`` are parts.
+
+    Attributes:
+        boxes: ``(N, 4)`` float32 node boxes ``[u0, v0, u1, v1]`` in the image the
+            graph describes (the synthetic one for a synthetic training graph).
+        features: ``(N, F)`` float32 node features.
+        weights: ``(N,)`` float32; the whole image 1, each of the K parts ``1/K``
+            (paper §3.2). The GCN multiplies each node's feature by its weight.
+        edges: ``(E, 2)`` int64 undirected edges ``i < j``.
+    """
+
+    WHOLE_IMAGE: ClassVar[int] = 0
+
+    boxes: np.ndarray
+    features: np.ndarray
+    weights: np.ndarray
+    edges: np.ndarray
+
+    def __post_init__(self) -> None:
+        n = len(self.boxes) if isinstance(self.boxes, np.ndarray) else -1
+        if n < 1:
+            raise InputError("SceneGraph: needs at least the whole-image node")
+        _check_array("SceneGraph.boxes", self.boxes, (n, 4), (np.floating,))
+        f = self.features.shape[1] if isinstance(self.features, np.ndarray) and self.features.ndim == 2 else -1
+        _check_array("SceneGraph.features", self.features, (n, f), (np.floating,))
+        _check_array("SceneGraph.weights", self.weights, (n,), (np.floating,))
+        e = len(self.edges) if isinstance(self.edges, np.ndarray) else -1
+        _check_array("SceneGraph.edges", self.edges, (e, 2), (np.integer,))
+        if e and (self.edges.min() < 0 or self.edges.max() >= n or np.any(self.edges[:, 0] >= self.edges[:, 1])):
+            raise InputError(f"SceneGraph.edges: expected pairs i < j of node indices below {n}")
+
+    @property
+    def num_nodes(self) -> int:
+        return len(self.boxes)
+
+    @property
+    def num_parts(self) -> int:
+        return self.num_nodes - 1

@@ -1,0 +1,53 @@
+"""Scene-graph assembly shared by every parser: node weights and edges by box proximity (paper §3.1.1, §3.2)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ssga_core.data import SceneGraph
+from ssga_core.geometry import Camera
+
+EDGE_GAP_PX = 20.0
+"""Boxes closer than this (in pixels of a 256-pixel-wide image) are joined by an edge."""
+
+
+def proximity_edges(boxes: np.ndarray, image_width: int, gap_px: float = EDGE_GAP_PX) -> np.ndarray:
+    """Edges ``(E, 2)`` between boxes that overlap or whose nearest pixels are within the gap.
+
+    Boxes are ``[u0, v0, u1, v1]`` in inclusive pixel-centre coordinates, so two
+    regions with touching pixels are 1 px apart. The gap is ``gap_px`` at a width
+    of 256 px and scales with ``image_width``.
+    """
+    boxes = np.asarray(boxes, dtype=np.float64)
+    n = len(boxes)
+    if n < 2:
+        return np.zeros((0, 2), dtype=np.int64)
+    gap = gap_px * image_width / 256.0
+    u0, v0, u1, v1 = (boxes[:, k] for k in range(4))
+    dx = np.maximum(0.0, np.maximum(u0[None, :] - u1[:, None], u0[:, None] - u1[None, :]))
+    dy = np.maximum(0.0, np.maximum(v0[None, :] - v1[:, None], v0[:, None] - v1[None, :]))
+    close = np.hypot(dx, dy) <= gap
+    i, j = np.nonzero(np.triu(close, k=1))
+    return np.stack([i, j], axis=1).astype(np.int64)
+
+
+def whole_image_box(camera: Camera) -> np.ndarray:
+    return np.array([0.0, 0.0, camera.width - 1.0, camera.height - 1.0], dtype=np.float32)
+
+
+def node_weights(num_parts: int) -> np.ndarray:
+    """The whole image weighs 1 and each of the K parts ``1/K`` (paper §3.2)."""
+    weights = np.full(1 + num_parts, 1.0 / max(num_parts, 1), dtype=np.float32)
+    weights[SceneGraph.WHOLE_IMAGE] = 1.0
+    return weights
+
+
+def assemble(camera: Camera, part_boxes: np.ndarray, features: np.ndarray) -> SceneGraph:
+    """The scene graph of a whole-image node (features row 0) and parts (rows 1..K)."""
+    boxes = np.concatenate([whole_image_box(camera)[None], np.asarray(part_boxes, dtype=np.float32).reshape(-1, 4)])
+    return SceneGraph(
+        boxes=boxes,
+        features=np.asarray(features, dtype=np.float32),
+        weights=node_weights(len(boxes) - 1),
+        edges=proximity_edges(boxes, camera.width),
+    )

@@ -1,0 +1,64 @@
+"""The hooks an ssga plugin implements.
+
+A plugin is a module (or object) registered under the ``ssga`` entry-point group that
+implements one or more of these hooks with :data:`ssga_core.hookimpl`. Every hook is
+called once, when the plugin manager builds its :class:`~ssga_core.plugins.Registry`
+(at the start of each CLI command), with no arguments, and returns a list of
+classes. Import heavy dependencies (torch models, OpenCV contrib...) *inside* your
+stage's methods or inside the hook, not at module top, so listing plugins stays fast
+and one broken dependency does not hide the rest.
+
+A class's ``name`` must be unique within its kind across all installed plugins; two
+plugins registering the same name is an error naming both.
+"""
+
+from __future__ import annotations
+
+import pluggy
+
+from ssga_core.stages import Descriptor, Fuser, Parser, Synthesizer, WorkspaceSource
+
+hookspec = pluggy.HookspecMarker("ssga")
+
+
+@hookspec
+def ssga_register_parsers() -> list[type[Parser]]:
+    """Scene parsers (stage P) this plugin provides.
+
+    :return: subclasses of :class:`ssga_core.Parser`, each with a unique ``name``.
+    """
+
+
+@hookspec
+def ssga_register_descriptors() -> list[type[Descriptor]]:
+    """Scene descriptors (stage D) this plugin provides.
+
+    :return: subclasses of :class:`ssga_core.LocalDescriptor` (features at pixel
+        positions, usable in every order) or :class:`ssga_core.RegionDescriptor`
+        (features of given regions, not usable where description precedes parsing
+        or synthesis).
+    """
+
+
+@hookspec
+def ssga_register_synthesizers() -> list[type[Synthesizer]]:
+    """View synthesizers (stage S) this plugin provides.
+
+    :return: subclasses of :class:`ssga_core.Synthesizer`.
+    """
+
+
+@hookspec
+def ssga_register_fusers() -> list[type[Fuser]]:
+    """Late-fusion rules combining the class scores of several variants.
+
+    :return: subclasses of :class:`ssga_core.Fuser`.
+    """
+
+
+@hookspec
+def ssga_register_workspaces() -> list[type[WorkspaceSource]]:
+    """Workspace sources: generated scenes, mesh renderers, folders of captured images.
+
+    :return: subclasses of :class:`ssga_core.WorkspaceSource`.
+    """

@@ -1,0 +1,215 @@
+"""What each variant order does: the pipeline semantics, written once for every plugin.
+
+A variant's letters run left to right over one *state*: the current image, and what
+has been parsed and described of it so far.
+
+* **P** parses the current image into regions (part nodes).
+* **D** describes the current image. A :class:`~ssga_core.LocalDescriptor` extracts
+  local features at pixel positions, pooled into node features at the end; a
+  :class:`~ssga_core.RegionDescriptor` describes the whole image and the regions
+  parsed so far (so it must come after P, or without P).
+* **S** renders the current image at the target pose and carries everything across
+  with the synthesizer's point map:
+
+  - regions: each part's centroid and box corners are mapped (paper §3.2) and the new
+    box is their bounding box, clipped to the image; the label map is forward-warped.
+    A part survives if its centroid lands inside the new image and some of its pixels
+    stay visible;
+  - local features: positions are mapped; features that are occluded or leave the
+    image are dropped. If regions were parsed before S, each feature keeps the node
+    it belonged to in the real image;
+  - semantic/instance ids of the real view are warped too, so ground-truth parsers
+    can parse synthetic views.
+
+At the end the graph is assembled: node 0 is the whole image (all local features, or
+the region descriptor's image feature), nodes 1..K the surviving parts; a part with no
+local feature in it is dropped (it has nothing to describe it). Weights are 1 for the
+whole image and 1/K per part; edges join boxes that overlap or are within 20 px.
+
+Real images (queries, and the one real training image per cell) take the query path:
+the order without S. So ``PDS``, ``PSD`` and ``SPD`` all parse-and-describe a query
+like ``PD``; ``DS`` and ``SD`` like ``D``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ssga_core.data import Data, LocalFeatures, Regions, SceneGraph, Synthesis, View
+from ssga_core.errors import InputError
+from ssga_core.geometry import Pose
+from ssga_core.graph import assemble
+from ssga_core.stages import Descriptor, LocalDescriptor, Parser, RegionDescriptor, Synthesizer
+from ssga_core.variants import Variant, check_binding
+
+
+@dataclass(frozen=True)
+class BoundVariant:
+    """A variant with its stage instances; checked on construction."""
+
+    variant: Variant
+    descriptor: Descriptor
+    parser: Parser | None = None
+    synthesizer: Synthesizer | None = None
+    label: str = ""
+
+    def __post_init__(self) -> None:
+        bound = {
+            "parser": type(self.parser) if self.parser is not None else None,
+            "descriptor": type(self.descriptor),
+            "synthesizer": type(self.synthesizer) if self.synthesizer is not None else None,
+        }
+        # Only the stage contract is checked here; what the workspace's views carry is
+        # checked by the config, which knows the workspace.
+        problems = check_binding(self.variant, bound, frozenset(Data))
+        if problems:
+            raise InputError("; ".join(problems))
+        if not self.label:
+            object.__setattr__(self, "label", table_label(self.variant, self.parser, self.descriptor))
+
+
+def table_label(variant: Variant, parser: Parser | type[Parser] | None, descriptor: Descriptor | type[Descriptor]) -> str:
+    """The paper's table notation: descriptor tag, parser tag, then the variant, e.g. ``P-SL (SPD1)``."""
+    head = descriptor.tag() + (f"-{parser.tag()}" if parser is not None and "P" in variant.order else "")
+    return f"{head} ({variant})"
+
+
+def build_graph(bound: BoundVariant, view: View, target: Pose | None = None) -> SceneGraph:
+    """The scene graph of ``view`` under ``bound``'s order.
+
+    Args:
+        bound: the variant and its stages.
+        view: a real view.
+        target: the pose to synthesize for a pseudo-training graph; ``None`` for a
+            real image (a query, or a cell's real training view): the query path.
+    """
+    if target is None:
+        order = bound.variant.query_order
+    elif bound.variant.synthesizes:
+        order = bound.variant.order
+    else:
+        raise InputError(f"variant {bound.variant} has no S: it cannot build a graph for another pose")
+    state = _State(view)
+    for stage in order:
+        if stage == "P":
+            assert bound.parser is not None
+            state.parse(bound.parser)
+        elif stage == "D":
+            state.describe(bound.descriptor)
+        else:
+            assert bound.synthesizer is not None and target is not None
+            state.synthesize(bound.synthesizer, target)
+    return state.graph(bound.descriptor)
+
+
+@dataclass
+class _State:
+    view: View
+    regions: Regions | None = None
+    local: LocalFeatures | None = None
+    local_nodes: np.ndarray | None = None
+    """Per local feature, its part index fixed before synthesis (-1 for none)."""
+    region_features: np.ndarray | None = field(default=None)
+
+    def parse(self, parser: Parser) -> None:
+        self.regions = parser.parse(self.view)
+
+    def describe(self, descriptor: Descriptor) -> None:
+        if isinstance(descriptor, LocalDescriptor):
+            self.local = descriptor.extract(self.view)
+        elif isinstance(descriptor, RegionDescriptor):
+            self.region_features = descriptor.describe(self.view, self.regions)
+        else:
+            raise TypeError(f"{type(descriptor).__name__} must subclass LocalDescriptor or RegionDescriptor")
+
+    def synthesize(self, synthesizer: Synthesizer, target: Pose) -> None:
+        syn = synthesizer.synthesize(self.view, target)
+        keep_parts = None
+        if self.regions is not None:
+            keep_parts, moved = carry_regions(self.regions, syn)
+            if self.local is not None:
+                self.local_nodes = _renumber(_region_at(self.regions.labels, self.local.positions), keep_parts)
+            self.regions = moved
+        if self.local is not None:
+            uv, visible = syn.map_points(self.local.positions)
+            self.local = LocalFeatures(positions=uv[visible], descriptors=self.local.descriptors[visible])
+            if self.local_nodes is not None:
+                self.local_nodes = self.local_nodes[visible]
+        self.view = _carry_view_labels(self.view, syn)
+
+    def graph(self, descriptor: Descriptor) -> SceneGraph:
+        camera = self.view.camera
+        regions = self.regions
+        if self.local is not None:
+            assert isinstance(descriptor, LocalDescriptor)
+            nodes = self.local_nodes
+            if nodes is None:
+                nodes = _region_at(regions.labels, self.local.positions) if regions is not None else None
+            if regions is not None and nodes is not None:
+                counts = np.bincount(nodes[nodes >= 0], minlength=len(regions))
+                keep = counts > 0
+                nodes = _renumber(nodes, keep)
+                regions = regions.select(keep)
+            parts = [np.flatnonzero(nodes == k) for k in range(len(regions))] if regions is not None else []
+            features = descriptor.pool(self.local, [np.arange(len(self.local)), *parts])
+        else:
+            assert self.region_features is not None
+            features = self.region_features
+        boxes = regions.boxes if regions is not None else np.zeros((0, 4), np.float32)
+        return assemble(camera, boxes, features)
+
+
+def carry_regions(regions: Regions, syn: Synthesis) -> tuple[np.ndarray, Regions]:
+    """Move regions into the synthetic view (see the module docstring).
+
+    Returns:
+        which parts survive (``(K,)`` bool) and the surviving regions, renumbered.
+    """
+    k = len(regions)
+    b = regions.boxes
+    corners = np.stack([b[:, [0, 1]], b[:, [2, 1]], b[:, [0, 3]], b[:, [2, 3]]], axis=1)
+    points = np.concatenate([regions.centroids()[:, None, :], corners], axis=1)  # (K, 5, 2)
+    mapped, _ = syn.map_points(points.reshape(-1, 2))
+    mapped = mapped.reshape(k, 5, 2)
+    camera = syn.view.camera
+    labels = syn.warp_labels(regions.labels)
+    seen = np.bincount(labels[labels >= 0], minlength=k) > 0
+    keep = camera.contains(mapped[:, 0]) & seen
+    # A kept part's centroid is finite, so each box has at least that point.
+    kept = mapped[keep]
+    limit = np.array([camera.width - 1, camera.height - 1], dtype=np.float32)
+    boxes = np.zeros((k, 4), dtype=np.float32)
+    boxes[keep] = np.concatenate([np.clip(np.nanmin(kept, axis=1), 0, limit), np.clip(np.nanmax(kept, axis=1), 0, limit)], axis=1)
+    moved = Regions(labels=labels, boxes=boxes, categories=regions.categories)
+    return keep, moved.select(keep)
+
+
+def _region_at(labels: np.ndarray, positions: np.ndarray) -> np.ndarray:
+    """Region index at each ``(u, v)`` position (nearest pixel), -1 outside any region or the image."""
+    h, w = labels.shape
+    col = np.rint(positions[:, 0]).astype(np.intp)
+    row = np.rint(positions[:, 1]).astype(np.intp)
+    inside = (col >= 0) & (col < w) & (row >= 0) & (row < h)
+    out = np.full(len(positions), -1, dtype=np.int32)
+    out[inside] = labels[row[inside], col[inside]]
+    return out
+
+
+def _renumber(nodes: np.ndarray, keep: np.ndarray) -> np.ndarray:
+    """Map old part indices to their index among the kept parts (-1 if dropped)."""
+    lut = np.full(len(keep) + 1, -1, dtype=np.int32)
+    lut[np.flatnonzero(keep)] = np.arange(int(keep.sum()), dtype=np.int32)
+    return lut[np.where(nodes >= 0, nodes, len(keep))]
+
+
+def _carry_view_labels(source: View, syn: Synthesis) -> View:
+    """The synthetic view, with the source's semantic/instance ids warped in if it has none."""
+    carried = {
+        name: syn.warp_labels(getattr(source, name))
+        for name in ("semantic", "instance")
+        if getattr(source, name) is not None and getattr(syn.view, name) is None
+    }
+    return dataclasses.replace(syn.view, **carried) if carried else syn.view

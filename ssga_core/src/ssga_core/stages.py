@@ -1,0 +1,223 @@
+"""Stage protocols: what a parser, descriptor, synthesizer, fuser or workspace source is.
+
+Each implementation is a subclass that declares, as class attributes,
+
+* ``name``: the name configs use (``parser = { name = "slico" }``);
+* ``Config``: its pydantic config model (a :class:`StageConfig`: unknown keys are
+  errors, instances are frozen);
+* ``consumes`` / ``produces``: the :class:`~ssga_core.data.Data` it needs and gives,
+  from which the core checks a bound variant before anything runs;
+* optionally ``abbrev`` (its tag in the paper's table notation, ``P-SL (SPD)``) and
+  ``presets`` (named parameter sets).
+
+The base classes do the checking and the bookkeeping; an implementation writes one
+``_method`` (``_parse``, ``_extract``...). Plugins never see which variant they run
+in: the order semantics live in :mod:`ssga_core.pipeline`.
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from collections.abc import Mapping, Sequence
+from typing import TYPE_CHECKING, Any, ClassVar
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict
+
+from ssga_core.data import Data, LocalFeatures, Regions, Synthesis, View
+from ssga_core.errors import InputError
+from ssga_core.geometry import Pose
+
+if TYPE_CHECKING:
+    from ssga_core.workspace import Workspace
+
+
+class StageConfig(BaseModel):
+    """Base of every stage's config: unknown keys are errors, instances are immutable."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class Stage(ABC):
+    """Common base: identity, config and declared data flow of a stage implementation."""
+
+    kind: ClassVar[str]
+    name: ClassVar[str]
+    Config: ClassVar[type[StageConfig]] = StageConfig
+    consumes: ClassVar[frozenset[Data]] = frozenset()
+    produces: ClassVar[frozenset[Data]] = frozenset()
+    abbrev: ClassVar[str] = ""
+    presets: ClassVar[Mapping[str, Mapping[str, Any]]] = {}
+
+    def __init__(self, config: StageConfig | None = None) -> None:
+        if config is None:
+            config = self.Config()
+        elif not isinstance(config, self.Config):
+            raise TypeError(f"{type(self).__name__} takes a {self.Config.__name__}, got {type(config).__name__}")
+        self.config = config
+
+    @classmethod
+    def tag(cls) -> str:
+        """Short name used in table labels: ``abbrev`` if set, else ``name``."""
+        return cls.abbrev or cls.name
+
+    def _require(self, view: View) -> None:
+        missing = set(self.consumes) & {Data.RGB, Data.DEPTH, Data.SEMANTIC} - view.available
+        if missing:
+            names = ", ".join(sorted(m.value for m in missing))
+            raise InputError(f"{self.kind} {self.name!r} needs {names}, which this view does not carry")
+
+    def __repr__(self) -> str:
+        return f"{type(self).__name__}({self.config!r})"
+
+
+class Parser(Stage):
+    """Scene parsing (P): cut an image into regions, the scene graph's part nodes."""
+
+    kind = "parser"
+    consumes = frozenset({Data.RGB})
+    produces = frozenset({Data.REGIONS})
+
+    def parse(self, view: View) -> Regions:
+        self._require(view)
+        regions = self._parse(view)
+        if regions.labels.shape != view.camera.shape:
+            raise InputError(
+                f"parser {self.name!r} returned labels of shape {regions.labels.shape} for a {view.camera.shape} image"
+            )
+        return regions
+
+    @abstractmethod
+    def _parse(self, view: View) -> Regions: ...
+
+
+class Descriptor(Stage):
+    """Scene description (D): a feature for each scene-graph node.
+
+    Subclass :class:`LocalDescriptor` or :class:`RegionDescriptor`, never this one.
+    """
+
+    kind = "descriptor"
+    consumes = frozenset({Data.RGB})
+
+    def fit(self, views: Sequence[View]) -> None:
+        """Learn what the descriptor needs from the training views (a dictionary, a classifier).
+
+        Called once per variant before any graph is built, with every training view
+        (real and synthetic). The default learns nothing.
+        """
+
+    @property
+    @abstractmethod
+    def dim(self) -> int:
+        """Length of a node feature (known after :meth:`fit`)."""
+
+
+class LocalDescriptor(Descriptor):
+    """Features at pixel positions, pooled into node features per region.
+
+    Because the features sit at positions, a synthesizer's point map can move them,
+    so this kind supports every order, also those that describe before parsing or
+    before synthesis (``DS``, ``DSP``, ``PDS``).
+    """
+
+    produces = frozenset({Data.LOCAL_FEATURES})
+
+    def extract(self, view: View) -> LocalFeatures:
+        self._require(view)
+        return self._extract(view)
+
+    def pool(self, features: LocalFeatures, members: Sequence[np.ndarray]) -> np.ndarray:
+        """Node features ``(N, dim)`` from the local features of each node.
+
+        Args:
+            features: every local feature of the view.
+            members: for each node, the indices into ``features`` that belong to it.
+        """
+        out = np.asarray(self._pool(features, members), dtype=np.float32)
+        if out.shape != (len(members), self.dim):
+            raise InputError(f"descriptor {self.name!r} pooled shape {out.shape}, expected {(len(members), self.dim)}")
+        return out
+
+    @abstractmethod
+    def _extract(self, view: View) -> LocalFeatures: ...
+
+    @abstractmethod
+    def _pool(self, features: LocalFeatures, members: Sequence[np.ndarray]) -> np.ndarray: ...
+
+
+class RegionDescriptor(Descriptor):
+    """Features of given regions only (e.g. a CNN classifying the image or a crop)."""
+
+    produces = frozenset({Data.REGION_FEATURES})
+
+    def describe(self, view: View, regions: Regions | None) -> np.ndarray:
+        """``(1 + K, dim)``: the whole image's feature, then one per region (K = 0 without regions)."""
+        self._require(view)
+        out = np.asarray(self._describe(view, regions), dtype=np.float32)
+        n = 1 + (len(regions) if regions is not None else 0)
+        if out.shape != (n, self.dim):
+            raise InputError(f"descriptor {self.name!r} returned shape {out.shape}, expected {(n, self.dim)}")
+        return out
+
+    @abstractmethod
+    def _describe(self, view: View, regions: Regions | None) -> np.ndarray: ...
+
+
+class Synthesizer(Stage):
+    """Scene synthesis (S): render a view from another pose, with the point map that did it."""
+
+    kind = "synthesizer"
+    consumes = frozenset({Data.RGB})
+    produces = frozenset({Data.RGB, Data.POINT_MAP})
+
+    def synthesize(self, view: View, target: Pose) -> Synthesis:
+        self._require(view)
+        result = self._synthesize(view, target)
+        if result.visible.shape != view.camera.shape:
+            raise InputError(f"synthesizer {self.name!r} returned a point map for {result.visible.shape}, expected {view.camera.shape}")
+        return result
+
+    @abstractmethod
+    def _synthesize(self, view: View, target: Pose) -> Synthesis: ...
+
+
+class Fuser(Stage):
+    """Late fusion of the class scores of several variants into one ranking."""
+
+    kind = "fuser"
+
+    def fuse(self, scores: np.ndarray) -> np.ndarray:
+        """Fuse ``(V, Q, C)`` scores (V variants, Q queries, C classes; higher is better) into ``(Q, C)``."""
+        scores = np.asarray(scores, dtype=np.float64)
+        if scores.ndim != 3 or 0 in scores.shape:
+            raise InputError(f"fuser {self.name!r}: expected non-empty (variants, queries, classes) scores, got shape {scores.shape}")
+        return self._fuse(scores)
+
+    @abstractmethod
+    def _fuse(self, scores: np.ndarray) -> np.ndarray: ...
+
+
+class WorkspaceSource(Stage):
+    """Where views come from: a generated or rendered scene, or a user's folder of images.
+
+    ``produces`` declares what its views carry (RGB always; depth and semantic ids
+    if the source has them), which decides the stages a variant may use on them.
+    """
+
+    kind = "workspace"
+    produces = frozenset({Data.RGB})
+
+    @abstractmethod
+    def open(self) -> Workspace:
+        """Open the workspace this source's config describes."""
+
+
+STAGE_BASES: dict[str, type[Stage]] = {
+    "parser": Parser,
+    "descriptor": Descriptor,
+    "synthesizer": Synthesizer,
+    "fuser": Fuser,
+    "workspace": WorkspaceSource,
+}
+"""Each stage kind and the base class its implementations subclass."""
