@@ -238,21 +238,26 @@ def validate_experiment(data: Mapping[str, Any], registry: Registry | None = Non
             problems.append(f"{format_loc((*at, 'variant'))}: {exc}")
             continue
         stages: dict[str, ResolvedStage] = {}
-        unresolved = False
+        classes: dict[str, type[Stage]] = {}
         for kind in variant.kinds():
             ref = getattr(spec, kind)
-            stage = resolve(ref, kind, (*at, kind)) if ref is not None else defaults[kind]
-            if stage is None:
-                unresolved = True
-                if ref is None and getattr(config.stages, kind) is None:
+            if ref is None:
+                ref = getattr(config.stages, kind)
+                stage = defaults[kind]
+                if ref is None:
                     problems.append(f"{format_loc((*at, kind))}: {variant} needs a {kind}; bind one here or in [stages]")
             else:
+                stage = resolve(ref, kind, (*at, kind))
+            if stage is not None:
                 stages[kind] = stage
-        if unresolved:
+            if ref is not None and id(ref) in resolve.classes:
+                classes[kind] = resolve.classes[id(ref)]
+        # Check the binding whenever every class is known, even if some parameters were
+        # wrong, so one run reports both kinds of problem.
+        if available is not None and len(classes) == len(variant.order):
+            problems.extend(f"{format_loc(at)}: {p}" for p in check_binding(variant, classes, available))
+        if len(stages) < len(variant.order):
             continue
-        if available is not None:
-            bound = {kind: stage.cls for kind, stage in stages.items()}
-            problems.extend(f"{format_loc(at)}: {p}" for p in check_binding(variant, bound, available))
         parser = stages["parser"].cls if "parser" in stages else None
         label = spec.label or table_label(variant, parser, stages["descriptor"].cls)
         if label in labels:
@@ -266,11 +271,13 @@ def validate_experiment(data: Mapping[str, Any], registry: Registry | None = Non
 
 
 class _Resolver:
-    """Resolves stage references, memoising by identity so a default is checked once."""
+    """Resolves stage references to classes and validated configs, collecting problems."""
 
     def __init__(self, registry: Registry, problems: list[str]) -> None:
         self.registry = registry
         self.problems = problems
+        self.classes: dict[int, type[Stage]] = {}
+        """Class of each reference whose name resolved, by ``id(ref)``."""
 
     def __call__(self, ref: StageRef | None, kind: str, at: tuple[str | int, ...]) -> ResolvedStage | None:
         if ref is None:
@@ -280,6 +287,7 @@ class _Resolver:
         except SsgaError as exc:
             self.problems.append(f"{format_loc((*at, 'name'))}: {exc}")
             return None
+        self.classes[id(ref)] = cls
         params: dict[str, Any] = {}
         if ref.preset is not None:
             if ref.preset not in cls.presets:

@@ -226,11 +226,15 @@ class Registry:
     def build(cls, plugins: PluginSet) -> Registry:
         entries: list[StageEntry] = []
         failures = list(plugins.failures)
+        # Each implementation is called on its own, to know which plugin gave which class;
+        # that bypasses pluggy's hook-call monitoring, so trace here (SSGA_TRACE_PLUGINS).
+        trace = plugins.pm.trace.root.get("hook")
         for kind, hook in HOOKS.items():
             for impl in getattr(plugins.pm.hook, hook).get_hookimpls():
                 info = plugins.infos.get(impl.plugin_name, PluginInfo(impl.plugin_name))
                 try:
                     classes = list(impl.function() or [])
+                    trace(f"{hook} [{impl.plugin_name}] ->", [getattr(c, "name", c) for c in classes])
                 except Exception as exc:  # noqa: BLE001 - a broken plugin must not hide the others
                     failures.append(PluginFailure(info, f"{hook}() raised {_one_line(exc)}"))
                     continue

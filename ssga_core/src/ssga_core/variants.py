@@ -172,7 +172,7 @@ def check_binding(variant: Variant, bound: Mapping[str, type[Stage] | None], ava
     if problems:
         return problems
     for kind, needs in requirements(variant.order).items():
-        cls = bound[kind]
+        cls = bound.get(kind)
         for data, why in needs.items():
             if cls is not None and data not in cls.produces:
                 problems.append(f"{variant} cannot use {kind} {cls.name!r}: {why}, and {cls.name!r} gives no {data}")

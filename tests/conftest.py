@@ -1,0 +1,15 @@
+"""Shared fixtures for ssga's own tests (plugin authors get theirs from ssga_core.testing)."""
+
+from __future__ import annotations
+
+import pytest
+
+from ssga_core.plugins import Registry
+from ssga_core.testing.stages import StandInPlugin
+
+
+@pytest.fixture
+def stand_in_registry(ssga_plugin_set) -> Registry:
+    """A registry of the stand-in stages and the installed fusers' kind of plugin: nothing installed."""
+    ssga_plugin_set.register(StandInPlugin(), "stand-ins")
+    return ssga_plugin_set.registry()

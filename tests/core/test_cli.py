@@ -1,0 +1,129 @@
+"""The ssga command, through typer's CliRunner."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+from typer.testing import CliRunner
+
+from ssga_core.cli.main import app
+
+runner = CliRunner()
+
+CONFIG = """
+variants = ["PDS", "DSP", {variant = "SPD2", parser = {name = "test-stripes", stripes = 8}}]
+[workspace]
+name = "test-wall"
+[stages]
+parser = { name = "test-stripes" }
+descriptor = { name = "test-patch-colour" }
+synthesizer = { name = "test-shift" }
+[fuser]
+name = "rrf"
+"""
+
+
+@pytest.fixture
+def stand_ins(monkeypatch, ssga_plugin_set):
+    """Make the CLI see the stand-in stages plus the installed plugins."""
+    from ssga_core.testing.stages import StandInPlugin
+
+    ssga_plugin_set.load_entry_points()
+    ssga_plugin_set.register(StandInPlugin(), "stand-ins")
+    registry = ssga_plugin_set.registry()
+    monkeypatch.setattr("ssga_core.config.default_registry", lambda: registry)
+    return registry
+
+
+def test_variants_list_shows_every_order_and_the_papers_eight():
+    result = runner.invoke(app, ["variants", "--list"])
+    assert result.exit_code == 0, result.output
+    rows = [line for line in result.output.splitlines() if line.startswith("│")]
+    assert len(rows) == 11
+    assert sum(" yes " in row for row in rows) == 8
+    dsp = next(row for row in rows if row.startswith("│ DSP "))
+    assert "describe → synthesize → parse" in dsp and "descriptor: local-features" in dsp
+
+
+def test_variants_json_has_needs_and_equivalences():
+    result = runner.invoke(app, ["variants", "--json"])
+    rows = {row["order"]: row for row in json.loads(result.output)}
+    assert rows["SDP"]["equivalent_to"] == ["SPD"] and not rows["SDP"]["in_paper"]
+    assert rows["DS"]["needs"] == {"descriptor": ["local-features"], "synthesizer": ["point-map"]}
+    assert rows["SPD"]["query_path"] == "PD"
+
+
+def test_variants_of_a_config(tmp_path, stand_ins):
+    path = tmp_path / "exp.toml"
+    path.write_text(CONFIG)
+    result = runner.invoke(app, ["variants", "--config", str(path), "--json"])
+    assert result.exit_code == 0, result.output
+    labels = [r["label"] for r in json.loads(result.output)]
+    assert labels == ["PC-ST (PDS)", "PC-ST (DSP)", "PC-ST (SPD2)"]
+
+
+def test_plugins_json_lists_distributions_and_config_schemas():
+    result = runner.invoke(app, ["plugins", "--json"])
+    assert result.exit_code == 0, result.output
+    data = json.loads(result.output)
+    grid = next(p for p in data["plugins"] if p["name"] == "grid")
+    assert grid["distribution"] == "ssga-parser-grid" and grid["kind"] == "parser"
+    assert set(grid["config_schema"]["properties"]) == {"rows", "cols"}
+    assert grid["presets"] == ["coarse", "fine"]
+    assert data["failures"] == []
+
+
+def test_plugins_table():
+    result = runner.invoke(app, ["plugins"])
+    assert result.exit_code == 0
+    assert "ssga-parser-grid" in result.output and "rows=4, cols=4" in result.output
+
+
+def test_config_validate_ok(tmp_path, stand_ins):
+    path = tmp_path / "exp.toml"
+    path.write_text(CONFIG)
+    result = runner.invoke(app, ["config", "validate", str(path)])
+    assert result.exit_code == 0, result.output
+    assert "ok, 3 variants: PC-ST (PDS), PC-ST (DSP), PC-ST (SPD2)" in result.output
+
+
+def test_config_validate_reports_every_problem_without_a_traceback(tmp_path, stand_ins):
+    path = tmp_path / "bad.toml"
+    path.write_text(CONFIG.replace('"DSP"', '"DPP"').replace("stripes = 8", "stripes = -1"))
+    result = runner.invoke(app, ["config", "validate", str(path)])
+    assert result.exit_code == 1
+    assert "Traceback" not in result.output
+    lines = result.stderr.splitlines()
+    assert lines[0] == f"error: {path}: 2 problems"
+    assert lines[1].strip().startswith("variants[1].variant: invalid variant 'DPP': column 3")
+    assert lines[2].strip() == "variants[2].parser.stripes: Input should be greater than or equal to 1"
+
+
+@pytest.mark.parametrize(
+    ("content", "message"),
+    [(None, "no such config file"), ("[workspace", "not valid TOML")],
+)
+def test_unreadable_configs_are_one_line_errors(tmp_path, content, message):
+    path = tmp_path / "exp.toml"
+    if content is not None:
+        path.write_text(content)
+    result = runner.invoke(app, ["config", "validate", str(path)])
+    assert result.exit_code == 1
+    assert len(result.stderr.strip().splitlines()) == 1 and message in result.stderr
+
+
+def test_config_schema_lists_installed_plugins():
+    result = runner.invoke(app, ["config", "schema"])
+    assert result.exit_code == 0
+    schema = json.loads(result.output)
+    parsers = schema["$defs"]["ParserRef"]["oneOf"]
+    grid = next(p for p in parsers if p["properties"]["name"] == {"const": "grid"})
+    assert grid["properties"]["preset"] == {"enum": ["coarse", "fine"]}
+    assert "rows" in grid["properties"]
+    assert {f["properties"]["name"]["const"] for f in schema["$defs"]["FuserRef"]["oneOf"]} >= {"rrf", "borda", "mean-prob"}
+
+
+def test_no_arguments_shows_help():
+    result = runner.invoke(app, [])
+    assert "variants" in result.output and "plugins" in result.output

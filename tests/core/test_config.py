@@ -1,0 +1,173 @@
+"""Experiment configs: shape, stage parameters, variants and bindings; every problem at once."""
+
+from __future__ import annotations
+
+import textwrap
+
+import pytest
+
+from ssga_core import ConfigError, SsgaError
+from ssga_core.config import format_loc, load_experiment, validate_experiment
+
+BASE = {
+    "workspace": {"name": "test-wall"},
+    "stages": {"parser": {"name": "test-stripes"}, "descriptor": {"name": "test-patch-colour"}, "synthesizer": {"name": "test-shift"}},
+    "fuser": {"name": "test-fuser"},
+}
+
+
+@pytest.fixture
+def registry(ssga_plugin_set):
+    from ssga_core import Fuser, hookimpl
+    from ssga_core.testing.stages import StandInPlugin
+
+    class TestFuser(Fuser):
+        name = "test-fuser"
+
+        def _fuse(self, scores):
+            return scores.sum(axis=0)
+
+    class Fusers:
+        @hookimpl
+        def ssga_register_fusers(self):
+            return [TestFuser]
+
+    ssga_plugin_set.register(StandInPlugin(), "stand-ins")
+    ssga_plugin_set.register(Fusers(), "fusers")
+    return ssga_plugin_set.registry()
+
+
+def test_the_papers_eight_variants_from_one_list(registry):
+    exp = validate_experiment({**BASE, "variants": ["PDS", "PSD", "SPD", "DSP", "PD", "DS", "SD", "D"]}, registry)
+    assert [v.label for v in exp.variants] == [
+        "PC-ST (PDS)", "PC-ST (PSD)", "PC-ST (SPD)", "PC-ST (DSP)", "PC-ST (PD)", "PC (DS)", "PC (SD)", "PC (D)",
+    ]
+    # Only the stages an order uses are bound.
+    assert set(exp.variants[7].stages) == {"descriptor"}
+    graph_maker = exp.variants[0].bind()
+    assert graph_maker.parser is not None and graph_maker.synthesizer is not None
+
+
+def test_two_presets_of_one_order_and_a_free_label(registry):
+    exp = validate_experiment(
+        {
+            **BASE,
+            "variants": [
+                {"variant": "SPD1"},
+                {"variant": "SPD2", "parser": {"name": "test-stripes", "stripes": 8}},
+                {"variant": "SD", "label": "CNN", "descriptor": {"name": "test-region-colour"}},
+            ],
+        },
+        registry,
+    )
+    assert [v.label for v in exp.variants] == ["PC-ST (SPD1)", "PC-ST (SPD2)", "CNN"]
+    assert exp.variants[1].stages["parser"].config.stripes == 8
+    assert exp.variants[0].stages["parser"].config.stripes == 4
+
+
+def test_swapping_the_descriptor_of_every_variant_is_one_line(registry):
+    swapped = {**BASE, "stages": {**BASE["stages"], "descriptor": {"name": "test-region-colour"}}, "variants": ["PD", "SD"]}
+    exp = validate_experiment(swapped, registry)
+    assert {v.stages["descriptor"].cls.name for v in exp.variants} == {"test-region-colour"}
+
+
+def test_all_problems_are_reported_at_once_with_paths(registry):
+    bad = {
+        **BASE,
+        "stages": {**BASE["stages"], "parser": {"name": "test-stripes", "stripes": 0}},
+        "variants": [
+            "PDS",
+            {"variant": "PPD"},
+            {"variant": "DSP", "descriptor": {"name": "test-region-colour"}},
+            {"variant": "PD", "descriptor": {"name": "sift"}},
+            {"variant": "SD", "synthesizer": {"name": "test-shift", "radius": 2}},
+        ],
+    }
+    with pytest.raises(ConfigError) as info:
+        validate_experiment(bad, registry, source="exp.toml")
+    problems = info.value.problems
+    assert problems == [
+        "stages.parser.stripes: Input should be greater than or equal to 1",
+        "variants[1].variant: invalid variant 'PPD': column 2: stage P (parse) appears twice; each stage runs at most once",
+        "variants[2]: DSP cannot use descriptor 'test-region-colour': the real image's description is carried into "
+        "the synthetic view, which moves local features at pixel positions with the synthesizer's point map, and "
+        "'test-region-colour' gives no local-features",
+        "variants[3].descriptor.name: no descriptor named 'sift'; known descriptors: test-patch-colour, test-region-colour",
+        "variants[4].synthesizer.radius: unknown key (misspelled?)",
+    ]
+    assert str(info.value).startswith("exp.toml: 5 problems\n")
+
+
+def test_shape_errors_come_from_step_one_with_paths(registry):
+    with pytest.raises(ConfigError) as info:
+        validate_experiment({"workspace": {}, "variants": [], "training": {"epochs": -1, "lr": "fast"}, "extra": 1}, registry)
+    assert info.value.problems == [
+        "workspace.name: Field required",
+        "variants: List should have at least 1 item after validation, not 0",
+        "training.epochs: Input should be greater than 0",
+        "training.lr: Input should be a valid number, unable to parse string as a number",
+        "extra: unknown key (misspelled?)",
+    ]
+
+
+def test_a_variant_needing_an_unbound_stage(registry):
+    config = {**BASE, "stages": {"descriptor": {"name": "test-patch-colour"}}, "variants": ["D", "PD"]}
+    with pytest.raises(ConfigError) as info:
+        validate_experiment(config, registry)
+    assert info.value.problems == ["variants[1].parser: PD needs a parser; bind one here or in [stages]"]
+
+
+def test_duplicate_labels_are_refused(registry):
+    with pytest.raises(ConfigError, match=r"variants\[1\].variant: label 'PC-ST \(SPD\)' is also variants\[0\]'s"):
+        validate_experiment({**BASE, "variants": ["SPD", "SPD"]}, registry)
+
+
+def test_presets(registry, monkeypatch):
+    from ssga_core.testing.stages import StripesParser
+
+    monkeypatch.setattr(StripesParser, "presets", {"fine": {"stripes": 16}})
+    config = {**BASE, "stages": {**BASE["stages"], "parser": {"name": "test-stripes", "preset": "fine"}}, "variants": ["PD"]}
+    assert validate_experiment(config, registry).variants[0].stages["parser"].config.stripes == 16
+    config["stages"]["parser"]["preset"] = "coarse"
+    with pytest.raises(ConfigError, match="stages.parser.preset: parser 'test-stripes' has no preset 'coarse'; its presets: fine"):
+        validate_experiment(config, registry)
+
+
+def test_views_that_lack_what_a_stage_needs(registry, monkeypatch):
+    from ssga_core import Data
+    from ssga_core.testing.stages import WallWorkspaceSource
+
+    monkeypatch.setattr(WallWorkspaceSource, "produces", frozenset({Data.RGB}))
+    with pytest.raises(ConfigError, match=r"variants\[0\]: SD: synthesizer 'test-shift' needs depth, which the real view does not carry"):
+        validate_experiment({**BASE, "variants": ["SD"]}, registry)
+
+
+def test_loading_files(tmp_path, registry):
+    path = tmp_path / "exp.toml"
+    path.write_text(
+        textwrap.dedent(
+            """
+            variants = ["PD", "SPD"]
+            [workspace]
+            name = "test-wall"
+            [stages]
+            parser = { name = "test-stripes", stripes = 6 }
+            descriptor = { name = "test-patch-colour" }
+            synthesizer = { name = "test-shift" }
+            [fuser]
+            name = "test-fuser"
+            """
+        )
+    )
+    exp = load_experiment(path, registry)
+    assert exp.source == str(path) and len(exp.variants) == 2
+    path.write_text("variants = [")
+    with pytest.raises(SsgaError, match=r"exp.toml: not valid TOML: "):
+        load_experiment(path, registry)
+    with pytest.raises(SsgaError, match="missing.toml: no such config file"):
+        load_experiment(tmp_path / "missing.toml", registry)
+
+
+def test_format_loc():
+    assert format_loc(("variants", 2, "descriptor", "k")) == "variants[2].descriptor.k"
+    assert format_loc(()) == "(top level)"

@@ -1,0 +1,79 @@
+"""The data model validates what stages hand over."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from ssga_core import Camera, InputError, LocalFeatures, Pose, Regions, SceneGraph, Synthesis, View
+from ssga_core.data import Data
+from ssga_core.testing import make_view
+
+
+def test_view_checks_shapes_and_dtypes_against_the_camera():
+    rgb = np.zeros((256, 256, 3), np.uint8)
+    with pytest.raises(InputError, match=r"View.rgb: expected shape \(256, 256, 3\) of uint8, got shape \(256, 256, 3\) of float64"):
+        View(rgb=rgb.astype(float), pose=Pose(0, 0, 0))
+    with pytest.raises(InputError, match=r"View.depth: expected shape \(256, 256\)"):
+        View(rgb=rgb, pose=Pose(0, 0, 0), depth=np.zeros((128, 128), np.float32))
+    with pytest.raises(InputError, match="View.semantic"):
+        View(rgb=rgb, pose=Pose(0, 0, 0), semantic=np.zeros((256, 256), np.float32))
+    with pytest.raises(InputError, match="expected a numpy array"):
+        View(rgb=[[0]], pose=Pose(0, 0, 0))  # type: ignore[arg-type]
+
+
+def test_view_reports_what_it_carries():
+    view = make_view()
+    assert view.available == {Data.RGB, Data.DEPTH, Data.SEMANTIC}
+    bare = View(rgb=view.rgb, pose=view.pose)
+    assert bare.available == {Data.RGB}
+    assert not bare.valid_depth().any()
+
+
+def test_regions_from_labels_renumber_and_box():
+    labels = np.full((6, 8), -1, np.int32)
+    labels[1:3, 2:5] = 7
+    labels[4:6, 0:2] = 3
+    regions = Regions.from_labels(labels, categories=np.arange(10) * 10)
+    assert len(regions) == 2
+    # Label 3 becomes 0 and label 7 becomes 1 (sorted), categories follow them.
+    np.testing.assert_array_equal(regions.boxes, [[0, 4, 1, 5], [2, 1, 4, 2]])
+    np.testing.assert_array_equal(regions.categories, [30, 70])
+    np.testing.assert_allclose(regions.centroids(), [[0.5, 4.5], [3.0, 1.5]])
+    kept = regions.select(np.array([False, True]))
+    assert len(kept) == 1 and kept.labels.max() == 0
+    np.testing.assert_array_equal(kept.mask(0), labels == 7)
+
+
+def test_regions_reject_labels_without_boxes():
+    with pytest.raises(InputError, match="label 2 has no box"):
+        Regions(labels=np.full((4, 4), 2, np.int32), boxes=np.zeros((1, 4), np.float32))
+
+
+def test_local_features_check_their_shapes():
+    with pytest.raises(InputError, match="LocalFeatures.descriptors"):
+        LocalFeatures(positions=np.zeros((5, 2), np.float32), descriptors=np.zeros((4, 8), np.float32))
+
+
+def test_point_map_lookup_and_label_warp():
+    cam = Camera(width=4, height=2)
+    target_uv = cam.pixel_grid() + np.array([1.0, 0.0], np.float32)
+    visible = cam.contains(target_uv)
+    view = View(rgb=np.zeros((2, 4, 3), np.uint8), pose=Pose(0, 0, 0), camera=cam, synthetic=True)
+    syn = Synthesis(view=view, target_uv=target_uv, visible=visible)
+    uv, vis = syn.map_points(np.array([[0.2, 0.9], [3.0, 0.0]]))
+    np.testing.assert_allclose(uv, [[1, 1], [4, 0]])
+    np.testing.assert_array_equal(vis, [True, False])
+    labels = np.array([[0, 1, 2, 3], [4, 5, 6, 7]], np.int32)
+    np.testing.assert_array_equal(syn.warp_labels(labels), [[-1, 0, 1, 2], [-1, 4, 5, 6]])
+
+
+def test_scene_graph_validates_edges_and_needs_the_whole_image():
+    ok = dict(boxes=np.zeros((3, 4), np.float32), features=np.zeros((3, 5), np.float32), weights=np.ones(3, np.float32))
+    SceneGraph(**ok, edges=np.array([[0, 1], [1, 2]]))
+    with pytest.raises(InputError, match="pairs i < j"):
+        SceneGraph(**ok, edges=np.array([[1, 0]]))
+    with pytest.raises(InputError, match="pairs i < j"):
+        SceneGraph(**ok, edges=np.array([[0, 3]]))
+    with pytest.raises(InputError, match="whole-image node"):
+        SceneGraph(boxes=np.zeros((0, 4), np.float32), features=np.zeros((0, 5), np.float32), weights=np.ones(0, np.float32), edges=np.zeros((0, 2), int))

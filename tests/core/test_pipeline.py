@@ -1,0 +1,165 @@
+"""The semantics of each order, checked exactly with stand-in stages.
+
+make_view() is a flat wall 3 m ahead, and ShiftWarp moves a camera sideways exactly:
+0.3 m to the right shifts the image content 128 * 0.3 / 3 = 12.8 px to the left.
+The stand-in parser cuts 4 vertical stripes of 64 px; the local descriptor has 144
+patches on a 12 x 12 grid whose columns sit at u = 10.17, 31.5, 52.8, ...
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from ssga_core import InputError, Pose, parse_variant
+from ssga_core.pipeline import BoundVariant, build_graph, table_label
+from ssga_core.testing import make_view
+from ssga_core.testing.stages import PatchColour, RegionColour, ShiftWarp, StripesParser, StripesConfig
+
+SHIFT = -128 * 0.3 / 3
+
+
+@pytest.fixture
+def view():
+    return make_view(seed=3)
+
+
+def target_right(view, metres=0.3):
+    return Pose(view.pose.x, view.pose.y - metres, view.pose.yaw)  # yaw 0: right is -y
+
+
+def bind(order, descriptor=None, stripes=4):
+    return BoundVariant(
+        parse_variant(order),
+        descriptor=descriptor or PatchColour(),
+        parser=StripesParser(StripesConfig(stripes=stripes)) if "P" in order else None,
+        synthesizer=ShiftWarp() if "S" in order else None,
+    )
+
+
+def test_d_is_one_whole_image_node(view):
+    graph = build_graph(bind("D"), view)
+    assert graph.num_nodes == 1 and len(graph.edges) == 0
+    local = PatchColour().extract(view)
+    np.testing.assert_allclose(graph.features[0], local.descriptors.mean(axis=0), rtol=1e-6)
+
+
+def test_pd_has_whole_image_and_parts_with_proximity_edges(view):
+    graph = build_graph(bind("PD"), view)
+    assert graph.num_nodes == 5
+    np.testing.assert_allclose(graph.weights, [1, 0.25, 0.25, 0.25, 0.25])
+    np.testing.assert_array_equal(graph.boxes[1], [0, 0, 63, 255])
+    # Whole image to every stripe; neighbouring stripes touch; stripes two apart are 65 px apart.
+    assert graph.edges.tolist() == [[0, 1], [0, 2], [0, 3], [0, 4], [1, 2], [2, 3], [3, 4]]
+    local = PatchColour().extract(view)
+    first_stripe = local.positions[:, 0] < 64
+    np.testing.assert_allclose(graph.features[1], local.descriptors[first_stripe].mean(axis=0), rtol=1e-6)
+
+
+def test_pds_moves_boxes_by_the_point_map_and_drops_features_that_leave(view):
+    graph = build_graph(bind("PDS"), view, target_right(view))
+    assert graph.num_nodes == 5
+    # Stripe 0 spans u = 0..63: its corners land at -12.8 (clipped to 0) and 50.2.
+    np.testing.assert_allclose(graph.boxes[1], [0, 0, 63 + SHIFT, 255], atol=1e-4)
+    np.testing.assert_allclose(graph.boxes[4], [192 + SHIFT, 0, 255 + SHIFT, 255], atol=1e-4)
+    # The first grid column (u = 10.17) leaves the image; stripe 0 keeps the other two
+    # columns it had in the real image, described as they were there.
+    local = PatchColour().extract(view)
+    u = local.positions[:, 0]
+    np.testing.assert_allclose(graph.features[0], local.descriptors[u + SHIFT > -0.5].mean(axis=0), rtol=1e-6)
+    np.testing.assert_allclose(graph.features[1], local.descriptors[(u < 64) & (u + SHIFT > -0.5)].mean(axis=0), rtol=1e-6)
+
+
+def test_pds_drops_parts_whose_centroid_leaves_the_view(view):
+    graph = build_graph(bind("PDS"), view, target_right(view, metres=1.0))  # 42.7 px
+    assert graph.num_nodes == 4  # stripe 0's centroid (31.5) lands at -11.2
+    np.testing.assert_allclose(graph.weights[1:], 1 / 3)
+
+
+def test_psd_describes_the_synthetic_image_within_the_carried_regions(view):
+    target = target_right(view)
+    graph = build_graph(bind("PSD"), view, target)
+    synthetic = ShiftWarp().synthesize(view, target).view
+    local = PatchColour().extract(synthetic)
+    # Warped stripe 0 covers synthetic u = 0..50 (its pixels shifted by 12.8 and rounded).
+    in_stripe0 = local.positions[:, 0] <= 50
+    np.testing.assert_allclose(graph.features[1], local.descriptors[in_stripe0].mean(axis=0), rtol=1e-6)
+    np.testing.assert_allclose(graph.features[0], local.descriptors.mean(axis=0), rtol=1e-6)
+
+
+def test_spd_parses_and_describes_the_synthetic_image(view):
+    target = target_right(view)
+    synthetic = ShiftWarp().synthesize(view, target).view
+    np.testing.assert_allclose(build_graph(bind("SPD"), view, target).features, build_graph(bind("PD"), synthetic).features)
+    np.testing.assert_allclose(build_graph(bind("SD"), view, target).features, build_graph(bind("D"), synthetic).features)
+
+
+def test_ds_carries_the_real_description_and_sd_redescribes(view):
+    target = target_right(view)
+    ds = build_graph(bind("DS"), view, target)
+    sd = build_graph(bind("SD"), view, target)
+    local = PatchColour().extract(view)
+    np.testing.assert_allclose(ds.features[0], local.descriptors[local.positions[:, 0] + SHIFT > -0.5].mean(axis=0), rtol=1e-6)
+    assert not np.allclose(ds.features, sd.features)
+
+
+def test_dsp_groups_moved_real_features_by_regions_of_the_synthetic_image(view):
+    target = target_right(view)
+    graph = build_graph(bind("DSP"), view, target)
+    local = PatchColour().extract(view)
+    moved = local.positions[:, 0] + SHIFT
+    kept = moved > -0.5
+    # Synthetic stripe 0 is u = 0..63 of the *synthetic* image, i.e. real u up to 76.8.
+    in_stripe0 = kept & (np.rint(moved) <= 63)
+    np.testing.assert_allclose(graph.features[1], local.descriptors[in_stripe0].mean(axis=0), rtol=1e-6)
+
+
+@pytest.mark.parametrize(("order", "same_as"), [("DP", "PD"), ("DPS", "PDS"), ("SDP", "SPD")])
+def test_equivalent_orders_build_identical_graphs(view, order, same_as):
+    target = target_right(view)
+    for t in (None, target) if "S" in order else (None,):
+        a, b = build_graph(bind(order), view, t), build_graph(bind(same_as), view, t)
+        np.testing.assert_array_equal(a.features, b.features)
+        np.testing.assert_array_equal(a.boxes, b.boxes)
+        np.testing.assert_array_equal(a.edges, b.edges)
+
+
+@pytest.mark.parametrize("order", ["PDS", "PSD", "SPD", "DSP"])
+def test_queries_take_the_pd_path(view, order):
+    query = build_graph(bind(order), view)
+    reference = build_graph(bind("PD"), view)
+    np.testing.assert_array_equal(query.features, reference.features)
+
+
+def test_region_descriptor_in_psd_describes_carried_regions(view):
+    graph = build_graph(bind("PSD", descriptor=RegionColour()), view, target_right(view))
+    assert graph.num_nodes == 5
+    assert graph.features.shape == (5, 3)
+
+
+def test_semantic_ids_are_warped_into_synthetic_views(view):
+    from ssga_core.pipeline import _State
+
+    state = _State(view)
+    state.synthesize(ShiftWarp(), target_right(view))
+    assert state.view.synthetic and state.view.semantic is not None
+    # Content moved 12.8 px left: synthetic column 100 shows real column 113 (rounding 112.8).
+    np.testing.assert_array_equal(state.view.semantic[:, 100], view.semantic[:, 113])
+
+
+def test_a_variant_without_s_cannot_build_graphs_for_other_poses(view):
+    with pytest.raises(InputError, match="has no S"):
+        build_graph(bind("PD"), view, target_right(view))
+
+
+def test_bound_variants_are_checked_on_construction():
+    with pytest.raises(InputError, match="cannot use descriptor 'test-region-colour'"):
+        bind("DSP", descriptor=RegionColour())
+    with pytest.raises(InputError, match="needs a synthesizer"):
+        BoundVariant(parse_variant("SD"), descriptor=PatchColour())
+
+
+def test_table_labels_follow_the_papers_notation():
+    assert table_label(parse_variant("SPD1"), StripesParser, PatchColour) == "PC-ST (SPD1)"
+    assert table_label(parse_variant("DS"), StripesParser, PatchColour) == "PC (DS)"
+    assert bind("PDS").label == "PC-ST (PDS)"
