@@ -176,3 +176,19 @@ def test_no_module_imports_pluggy_but_the_core():
     for path in [*REPO.glob("plugins/*/*/src/**/*.py"), *REPO.glob("examples/*/src/**/*.py")]:
         assert "import pluggy" not in path.read_text(), path
     assert "pluggy" in sys.modules
+
+
+def test_throwaway_plugin_modules_load_from_the_environment(tmp_path, monkeypatch, fake_entry_points):
+    (tmp_path / "my_parser.py").write_text(
+        "from ssga_core import hookimpl\n"
+        "from ssga_core.testing.stages import StripesParser\n"
+        "class Mine(StripesParser):\n    name = 'mine'\n"
+        "@hookimpl\ndef ssga_register_parsers():\n    return [Mine]\n"
+    )
+    fake_entry_points()
+    monkeypatch.syspath_prepend(str(tmp_path))
+    monkeypatch.setenv("SSGA_PLUGIN_MODULES", "my_parser, not_there")
+    registry = get_plugin_manager().registry()
+    assert registry.entry("parser", "mine").plugin.distribution == "(SSGA_PLUGIN_MODULES)"
+    (failure,) = registry.failures
+    assert "cannot import not_there: ModuleNotFoundError" in str(failure)

@@ -12,11 +12,14 @@ Discovery, in order:
 3. :class:`Registry` calls every ``ssga_register_*`` hook once and indexes the returned
    classes by ``(kind, name)``. Two plugins giving one name is an error naming both.
 
-``SSGA_TRACE_PLUGINS=1`` prints every hook call to stderr.
+``SSGA_PLUGIN_MODULES=my_parser,other.module`` also imports and registers those modules
+(from the current directory or anywhere on ``sys.path``): the quickest way to try a plugin
+before packaging it. ``SSGA_TRACE_PLUGINS=1`` prints every hook call to stderr.
 """
 
 from __future__ import annotations
 
+import importlib
 import importlib.metadata as metadata
 import inspect
 import os
@@ -147,6 +150,19 @@ class PluginSet:
                 continue
             self.register(plugin, ep.name, info=info)
 
+    def load_modules(self, names: Iterable[str]) -> None:
+        """Import and register plugin modules by dotted name, recording failures per module."""
+        if "" not in sys.path and os.getcwd() not in sys.path:
+            sys.path.insert(0, os.getcwd())
+        for name in names:
+            info = PluginInfo(name=name, distribution="(SSGA_PLUGIN_MODULES)")
+            try:
+                module = importlib.import_module(name)
+            except Exception as exc:  # noqa: BLE001 - reported by name, like an entry point
+                self.failures.append(PluginFailure(info, f"cannot import {name}: {_one_line(exc)}"))
+                continue
+            self.register(module, name, info=info)
+
     def registry(self) -> Registry:
         """Call every registration hook and index the classes (see :class:`Registry`)."""
         return Registry.build(self)
@@ -167,6 +183,8 @@ def get_plugin_manager(*, load_entrypoints: bool = True) -> PluginSet:
     plugins = PluginSet(pm)
     if load_entrypoints and not _env_flag("SSGA_DISABLE_PLUGIN_AUTOLOAD"):
         plugins.load_entry_points()
+    modules = [m.strip() for m in os.environ.get("SSGA_PLUGIN_MODULES", "").split(",") if m.strip()]
+    plugins.load_modules(modules)
     return plugins
 
 
