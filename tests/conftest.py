@@ -5,11 +5,11 @@ from __future__ import annotations
 import pytest
 
 from ssga_core.plugins import Registry
-from ssga_core.testing.stages import StandInPlugin
+from ssga_core.testing import stages as stand_in_stages
 
 
 @pytest.fixture
 def stand_in_registry(ssga_plugin_set) -> Registry:
     """A registry of the stand-in stages and the installed fusers' kind of plugin: nothing installed."""
-    ssga_plugin_set.register(StandInPlugin(), "stand-ins")
+    ssga_plugin_set.register(stand_in_stages, "stand-ins")
     return ssga_plugin_set.registry()

@@ -27,10 +27,10 @@ name = "rrf"
 @pytest.fixture
 def stand_ins(monkeypatch, ssga_plugin_set):
     """Make the CLI see the stand-in stages plus the installed plugins."""
-    from ssga_core.testing.stages import StandInPlugin
+    from ssga_core.testing import stages as stand_in_stages
 
     ssga_plugin_set.load_entry_points()
-    ssga_plugin_set.register(StandInPlugin(), "stand-ins")
+    ssga_plugin_set.register(stand_in_stages, "stand-ins")
     registry = ssga_plugin_set.registry()
     monkeypatch.setattr("ssga_core.config.default_registry", lambda: registry)
     return registry

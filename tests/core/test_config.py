@@ -19,7 +19,7 @@ BASE = {
 @pytest.fixture
 def registry(ssga_plugin_set):
     from ssga_core import Fuser, hookimpl
-    from ssga_core.testing.stages import StandInPlugin
+    from ssga_core.testing import stages as stand_in_stages
 
     class TestFuser(Fuser):
         name = "test-fuser"
@@ -32,7 +32,7 @@ def registry(ssga_plugin_set):
         def ssga_register_fusers(self):
             return [TestFuser]
 
-    ssga_plugin_set.register(StandInPlugin(), "stand-ins")
+    ssga_plugin_set.register(stand_in_stages, "stand-ins")
     ssga_plugin_set.register(Fusers(), "fusers")
     return ssga_plugin_set.registry()
 

@@ -39,6 +39,7 @@ from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, ValidationEr
 from ssga_core.errors import ConfigError, SsgaError
 from ssga_core.pipeline import BoundVariant, table_label
 from ssga_core.plugins import Registry, default_registry
+from ssga_core.protocol import ProtocolConfig
 from ssga_core.stages import Stage, StageConfig
 from ssga_core.variants import Variant, check_binding, parse_variant
 
@@ -139,6 +140,7 @@ class ExperimentConfig(_Strict):
     workspace: WorkspaceRef
     stages: StageDefaults = StageDefaults()
     variants: list[Annotated[VariantSpec, BeforeValidator(_variant_entry)]] = Field(min_length=1)
+    protocol: ProtocolConfig = ProtocolConfig()
     training: TrainingConfig = TrainingConfig()
     fuser: FuserRef = FuserRef(name="rrf")
     output: Path = Field(default=Path("runs/experiment"), description="Folder for caches, checkpoints and reports.")
@@ -302,6 +304,19 @@ class _Resolver:
             self.problems.extend(_pydantic_problems(exc, at))
             return None
         return ResolvedStage(kind, cls, config)
+
+
+def resolve_stage(kind: str, ref: Mapping[str, Any], registry: Registry | None = None, *, source: str = "<options>") -> ResolvedStage:
+    """Resolve one ``{name = ..., ...}`` stage reference outside an experiment config (CLI options)."""
+    problems: list[str] = []
+    try:
+        parsed = REF_TYPES[kind].model_validate(ref)
+    except ValidationError as exc:
+        raise ConfigError(source, _pydantic_problems(exc, (kind,))) from None
+    stage = _Resolver(registry or default_registry(), problems)(parsed, kind, (kind,))
+    if stage is None:
+        raise ConfigError(source, problems)
+    return stage
 
 
 def experiment_schema(registry: Registry | None = None) -> dict[str, Any]:

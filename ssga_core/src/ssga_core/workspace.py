@@ -8,7 +8,7 @@ it by the core, whatever the source.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Protocol, runtime_checkable
+from typing import Any, Protocol, runtime_checkable
 
 import shapely
 from shapely.geometry.base import BaseGeometry
@@ -46,6 +46,41 @@ class FloorPlan:
 
     def can_stand(self, x: float, y: float) -> bool:
         return bool(self.free.covers(shapely.Point(x, y)))
+
+    def to_json(self) -> dict[str, Any]:
+        """The floor-plan file format: ``{"free": [...], "occluders": [...]}``.
+
+        Each entry is a polygon as GeoJSON writes one: a list of rings, the outline first,
+        then its holes, each ring a list of ``[x, y]`` in metres (ssga's world frame).
+        A polygon without holes may also be given as just its outline.
+        """
+        return {name: [_rings(p) for p in _polygons(getattr(self, name))] for name in ("free", "occluders")}
+
+    @classmethod
+    def from_json(cls, data: Any, source: str = "floor plan") -> FloorPlan:
+        try:
+            parts = {name: shapely.union_all([_polygon(p) for p in data[name]]) for name in ("free", "occluders")}
+        except (KeyError, TypeError, ValueError, IndexError) as exc:
+            raise InputError(
+                f"{source}: expected {{\"free\": [polygons], \"occluders\": [polygons]}} with polygons as lists of "
+                f"[x, y] rings ({type(exc).__name__}: {exc})"
+            ) from None
+        return cls(free=parts["free"], occluders=parts["occluders"])
+
+
+def _polygons(geom: BaseGeometry) -> list[shapely.Polygon]:
+    return [g for g in getattr(geom, "geoms", [geom]) if g.geom_type == "Polygon" and not g.is_empty]
+
+
+def _rings(poly: shapely.Polygon) -> list[list[list[float]]]:
+    return [[[round(x, 6), round(y, 6)] for x, y in ring.coords] for ring in (poly.exterior, *poly.interiors)]
+
+
+def _polygon(rings: Any) -> shapely.Polygon:
+    if rings and isinstance(rings[0][0], (int, float)):  # just an outline
+        rings = [rings]
+    poly = shapely.Polygon(rings[0], rings[1:])
+    return poly if poly.is_valid else poly.buffer(0)
 
 
 @runtime_checkable

@@ -1,7 +1,7 @@
 """Stand-in stages: simple, exact and fast, to test one real stage in every variant order.
 
-They are registered by no entry point; tests use them directly or register them on a
-fresh plugin manager (see :class:`StandInPlugin`).
+They are registered by no entry point; tests use them directly or register this module
+on a fresh plugin manager.
 """
 
 from __future__ import annotations
@@ -151,21 +151,26 @@ class _WallWorkspace:
 
 
 
-class StandInPlugin:
-    """A plugin object registering every stand-in stage (register it on a fresh plugin set)."""
+# The module itself is a plugin registering every stand-in: register it on a fresh plugin
+# set in tests, or try the stand-ins from the command line with
+# SSGA_PLUGIN_MODULES=ssga_core.testing.stages.
 
-    @hookimpl
-    def ssga_register_parsers(self) -> list[type[Parser]]:
-        return [StripesParser]
 
-    @hookimpl
-    def ssga_register_descriptors(self) -> list[type[Descriptor]]:
-        return [PatchColour, RegionColour]
+@hookimpl
+def ssga_register_parsers() -> list[type[Parser]]:
+    return [StripesParser]
 
-    @hookimpl
-    def ssga_register_synthesizers(self) -> list[type[Synthesizer]]:
-        return [ShiftWarp]
 
-    @hookimpl
-    def ssga_register_workspaces(self) -> list[type[WorkspaceSource]]:
-        return [WallWorkspaceSource]
+@hookimpl
+def ssga_register_descriptors() -> list[type[Descriptor]]:
+    return [PatchColour, RegionColour]
+
+
+@hookimpl
+def ssga_register_synthesizers() -> list[type[Synthesizer]]:
+    return [ShiftWarp]
+
+
+@hookimpl
+def ssga_register_workspaces() -> list[type[WorkspaceSource]]:
+    return [WallWorkspaceSource]

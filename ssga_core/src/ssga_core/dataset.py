@@ -1,0 +1,211 @@
+"""A benchmark workspace on disk: the protocol's plan, rendered, with a manifest.
+
+Layout of a dataset folder::
+
+    dataset.json     what was built: source and its config, protocol config, camera, format
+    floorplan.json   the floor plan (FloorPlan.to_json), for visibility and plots
+    plan.json        the grid, the selected cells and every sample (written before rendering)
+    rgb/<id>.png     RGB, 8-bit
+    depth/<id>.png   metric planar depth, 16-bit millimetres (0 = unknown)
+    semantic/<id>.png, instance/<id>.png
+                     ids + 1, 16-bit (0 = unknown)
+    manifest.jsonl   one line per view: id, split, place, cell, orientation, pose, VO, level,
+                     and its files; written last, so its presence means the build finished
+
+Splits: ``train`` is the one real image per cell, ``test`` the test views, ``target``
+the synthesis targets of the classes without a real image (their images are rendered
+as an oracle for judging synthesis, and never used for training).
+
+Building is resumable: an interrupted build keeps its plan and every view already
+written (each file appears atomically), and the next build renders only what is missing.
+"""
+
+from __future__ import annotations
+
+import shutil
+from collections.abc import Callable, Iterable
+from dataclasses import asdict
+from pathlib import Path
+from typing import Any
+
+from ssga_core.data import View
+from ssga_core.errors import InputError
+from ssga_core.geometry import Camera, Pose
+from ssga_core.io import (
+    depth_from_png16,
+    depth_to_png16,
+    ids_from_png16,
+    ids_to_png16,
+    read_json,
+    read_jsonl,
+    read_png,
+    write_json,
+    write_jsonl,
+    write_png,
+)
+from ssga_core.protocol import Grid, Plan, Protocol, ProtocolConfig, Sample
+from ssga_core.workspace import FloorPlan, Workspace
+
+FORMAT = 1
+CHANNELS = ("rgb", "depth", "semantic", "instance")
+
+
+def sample_record(sample: Sample) -> dict[str, Any]:
+    record = asdict(sample)
+    pose = record.pop("pose")
+    return {**record, **{k: pose[k] for k in ("x", "y", "yaw", "height")}}
+
+
+def sample_from_record(record: dict[str, Any]) -> Sample:
+    try:
+        pose = Pose(record["x"], record["y"], record["yaw"], record["height"])
+        fields = {k: record.get(k) for k in ("vo", "vo_landmark", "level")}
+        return Sample(record["id"], record["split"], int(record["place"]), int(record["cell"]), int(record["orientation"]), pose, **fields)
+    except (KeyError, TypeError, ValueError) as exc:
+        raise InputError(f"sample record {record.get('id', record)!r}: missing or bad field ({exc})") from None
+
+
+def _header(workspace: Workspace, source: dict[str, Any], protocol: ProtocolConfig) -> dict[str, Any]:
+    cam = workspace.camera
+    return {
+        "format": FORMAT,
+        "workspace": workspace.name,
+        "source": source,
+        "protocol": protocol.model_dump(mode="json"),
+        "camera": {"width": cam.width, "height": cam.height, "hfov_deg": cam.hfov_deg},
+    }
+
+
+def build_dataset(
+    workspace: Workspace,
+    out: str | Path,
+    *,
+    source: dict[str, Any],
+    protocol: ProtocolConfig,
+    height: float = 1.5,
+    overwrite: bool = False,
+    progress: Callable[[str, int, int], None] | None = None,
+) -> Dataset:
+    """Plan and render a benchmark workspace into ``out`` (resuming a build left unfinished).
+
+    Args:
+        workspace: the opened workspace to render.
+        out: the dataset folder.
+        source: the workspace source's name and config, recorded so a resumed build
+            can refuse a folder that holds another workspace.
+        protocol: the protocol's config.
+        height: camera height of every viewpoint.
+        overwrite: delete what ``out`` holds if it was built differently.
+        progress: called with ``(phase, done, total)``; phases ``"plan"`` and ``"render"``.
+    """
+    out = Path(out)
+    header = _header(workspace, source, protocol)
+    if (out / "dataset.json").exists():
+        old = read_json(out / "dataset.json")
+        if old != header:
+            if not overwrite:
+                changed = sorted(k for k in header if old.get(k) != header[k])
+                raise InputError(f"{out}: holds a dataset built with other settings ({', '.join(changed)}); use another folder or --overwrite")
+            shutil.rmtree(out)
+    write_json(out / "dataset.json", header)
+    write_json(out / "floorplan.json", workspace.floor_plan.to_json())
+
+    if (out / "plan.json").exists():
+        plan = _read_plan(out, workspace.name, protocol)
+    else:
+        report = (lambda done, total: progress("plan", done, total)) if progress else None
+        plan = Protocol(workspace.floor_plan, workspace.camera, protocol).plan(workspace.name, height, report)
+        write_json(out / "plan.json", {"grid": asdict(plan.grid), "cells": list(plan.cells), "samples": [sample_record(s) for s in plan.samples]})
+
+    for done, sample in enumerate(plan.samples, 1):
+        paths = {ch: out / ch / f"{sample.id}.png" for ch in CHANNELS}
+        if not all(p.exists() for p in paths.values()):
+            _write_view(workspace.render(sample.pose), paths)
+        if progress:
+            progress("render", done, len(plan.samples))
+    write_jsonl(out / "manifest.jsonl", (_manifest_row(s) for s in plan.samples))
+    return Dataset.open(out)
+
+
+def _write_view(view: View, paths: dict[str, Path]) -> None:
+    # Depth and ids first, RGB last: a view counts as written only once all four exist.
+    if view.depth is None or view.semantic is None or view.instance is None:
+        raise InputError("workspace render: a benchmark view needs depth and semantic and instance ids")
+    write_png(paths["depth"], depth_to_png16(view.depth))
+    write_png(paths["semantic"], ids_to_png16(view.semantic, "semantic"))
+    write_png(paths["instance"], ids_to_png16(view.instance, "instance"))
+    write_png(paths["rgb"], view.rgb)
+
+
+def _manifest_row(sample: Sample) -> dict[str, Any]:
+    return {**sample_record(sample), **{ch: f"{ch}/{sample.id}.png" for ch in CHANNELS}}
+
+
+def _read_plan(out: Path, name: str, config: ProtocolConfig) -> Plan:
+    raw = read_json(out / "plan.json")
+    try:
+        grid = Grid(**raw["grid"])
+        return Plan(name, config, grid, tuple(raw["cells"]), tuple(sample_from_record(r) for r in raw["samples"]))
+    except (KeyError, TypeError) as exc:
+        raise InputError(f"{out / 'plan.json'}: not a plan written by ssga ({exc})") from None
+
+
+class Dataset:
+    """A finished benchmark dataset folder (see the module docstring)."""
+
+    def __init__(self, root: Path, header: dict[str, Any], plan: Plan, rows: dict[str, dict[str, Any]]) -> None:
+        self.root = root
+        self.header = header
+        self.plan = plan
+        self._rows = rows
+
+    @classmethod
+    def open(cls, root: str | Path) -> Dataset:
+        root = Path(root)
+        if not (root / "dataset.json").exists():
+            raise InputError(f"{root}: not an ssga dataset (no dataset.json); build one with `ssga workspace build`")
+        if not (root / "manifest.jsonl").exists():
+            raise InputError(f"{root}: the build did not finish (no manifest.jsonl); run `ssga workspace build` again to resume it")
+        header = read_json(root / "dataset.json")
+        if header.get("format") != FORMAT:
+            raise InputError(f"{root}: dataset format {header.get('format')!r}, this ssga reads format {FORMAT}")
+        config = ProtocolConfig.model_validate(header["protocol"])
+        plan = _read_plan(root, header["workspace"], config)
+        rows = {row["id"]: row for row in read_jsonl(root / "manifest.jsonl")}
+        return cls(root, header, plan, rows)
+
+    @property
+    def name(self) -> str:
+        return str(self.header["workspace"])
+
+    @property
+    def camera(self) -> Camera:
+        return Camera(**self.header["camera"])
+
+    @property
+    def num_classes(self) -> int:
+        return self.plan.num_classes
+
+    def split(self, split: str) -> list[Sample]:
+        return self.plan.split(split)  # type: ignore[arg-type]
+
+    def view(self, sample: Sample) -> View:
+        """Load a sample's view (RGB, depth, semantic and instance ids)."""
+        row = self._rows.get(sample.id)
+        if row is None:
+            raise InputError(f"{self.root}: no view {sample.id!r} in manifest.jsonl")
+        rgb = read_png(self.root / row["rgb"], color=True)
+        depth = depth_from_png16(read_png(self.root / row["depth"], color=False))
+        semantic = ids_from_png16(read_png(self.root / row["semantic"], color=False))
+        instance = ids_from_png16(read_png(self.root / row["instance"], color=False))
+        try:
+            return View(rgb=rgb, pose=sample.pose, camera=self.camera, depth=depth, semantic=semantic, instance=instance)
+        except InputError as exc:
+            raise InputError(f"{self.root / row['rgb']} (view {sample.id}): {exc}") from None
+
+    @property
+    def floor_plan(self) -> FloorPlan:
+        return FloorPlan.from_json(read_json(self.root / "floorplan.json"), str(self.root / "floorplan.json"))
+
+    def views(self, samples: Iterable[Sample]) -> list[View]:
+        return [self.view(s) for s in samples]

@@ -1,0 +1,305 @@
+"""The paper's benchmark protocol (§4.1-4.2), applied the same way to any workspace.
+
+Definitions (the paper leaves the last three open; these are ssga's):
+
+* **Cells.** The floor plan is cut into a grid of square location cells
+  (``cell_size``, 2 m), aligned to multiples of the cell size.
+* **Which cell a view belongs to.** A view belongs to a cell whose centroid lies in
+  its visibility cone (the field-of-view wedge, cut by occluders, up to
+  ``max_range``: :mod:`ssga_core.visibility`); if several do, to the one whose
+  centroid is nearest the viewpoint. A view whose cone holds no centroid belongs to
+  no cell.
+* **Place classes.** Each cell has ``orientations`` (12) classes, by the view's
+  heading: class ``k`` covers headings within half a bin of ``k * 360 / 12`` degrees.
+  ``cells`` (10) cells are drawn at random, giving 120 classes, numbered
+  ``cell_rank * orientations + orientation``.
+* **Training viewpoints.** The *canonical viewpoint* of a class stands
+  ``viewpoint_distance`` (1 m) behind the cell centroid along the class heading and
+  looks at the centroid (nearer or farther if that spot is not free), so it belongs
+  to that class. A cell is eligible only if all its classes have one. Each cell gets
+  exactly one real training image, at the canonical viewpoint of one class drawn at
+  random; the canonical viewpoints of its other classes are the *targets* the
+  synthesizer renders the real image to.
+* **Test views** are sampled independently: a position uniform in the free floor
+  within ``test_radius`` of a selected cell's centroid and a uniform heading, kept
+  if it belongs to a selected class that still needs test views; ``test_per_class``
+  per class (the paper: 1500).
+* **View overlap (VO)** of a test view: the intersection over union (in %) of its
+  visibility polygon and that of its class's training viewpoint (the real image for
+  the real class, the synthesis target for the others). ``vo_landmark`` is the same
+  against the cell's one real image. Levels: L1 ``VO > 60``, L2 ``30 < VO <= 60``,
+  L3 ``VO <= 30``, from ``vo`` by default (``level_reference = "landmark"`` uses
+  ``vo_landmark``).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+import shapely
+from pydantic import BaseModel, ConfigDict, Field
+
+from ssga_core.errors import InputError
+from ssga_core.geometry import Camera, Pose
+from ssga_core.visibility import cast_rays, occluder_segments, sees, view_overlap, visibility_polygon
+from ssga_core.workspace import FloorPlan
+
+Split = Literal["train", "target", "test"]
+
+
+class ProtocolConfig(BaseModel):
+    """Cells, classes, sampling and difficulty levels of the benchmark."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    cell_size: float = Field(default=2.0, gt=0.0, description="Side of a location cell, metres.")
+    cells: int = Field(default=10, ge=1, description="Location cells drawn at random.")
+    orientations: int = Field(default=12, ge=1, le=360, description="Heading classes per cell.")
+    test_per_class: int = Field(default=20, ge=1, le=100_000, description="Test views per class (the paper: 1500).")
+    test_radius: float = Field(default=3.0, gt=0.0, description="Test cameras stand within this distance of their cell's centroid, metres.")
+    viewpoint_distance: float = Field(default=1.0, gt=0.0, description="Canonical viewpoints stand this far behind the cell centroid, metres.")
+    max_range: float = Field(default=10.0, gt=0.0, description="Visibility cones end here, metres.")
+    rays: int = Field(default=121, ge=3, description="Rays cast per visibility cone.")
+    level_bounds: tuple[float, float] = Field(default=(60.0, 30.0), description="VO above the first is L1, above the second L2, else L3.")
+    level_reference: Literal["class", "landmark"] = Field(
+        default="class",
+        description="Levels from the VO with the class's training viewpoint ('class') or with the cell's one real image ('landmark').",
+    )
+    max_candidates: int = Field(default=200, ge=1, description="Candidate poses tried per test view wanted before giving up.")
+    seed: int = Field(default=0, description="Seed of every random draw of the protocol.")
+
+
+@dataclass(frozen=True)
+class Grid:
+    """The grid of location cells: cell ``(i, j)`` has index ``j * nx + i``."""
+
+    x0: float
+    y0: float
+    cell_size: float
+    nx: int
+    ny: int
+
+    @classmethod
+    def covering(cls, bounds: tuple[float, float, float, float], cell_size: float) -> Grid:
+        xmin, ymin, xmax, ymax = bounds
+        x0, y0 = math.floor(xmin / cell_size) * cell_size, math.floor(ymin / cell_size) * cell_size
+        return cls(x0, y0, cell_size, max(1, math.ceil((xmax - x0) / cell_size)), max(1, math.ceil((ymax - y0) / cell_size)))
+
+    def centroids(self) -> np.ndarray:
+        """``(nx * ny, 2)`` cell centroids by cell index."""
+        j, i = np.divmod(np.arange(self.nx * self.ny), self.nx)
+        return np.stack([self.x0 + (i + 0.5) * self.cell_size, self.y0 + (j + 0.5) * self.cell_size], axis=-1)
+
+    def box(self, cell: int) -> tuple[float, float, float, float]:
+        j, i = divmod(cell, self.nx)
+        x, y = self.x0 + i * self.cell_size, self.y0 + j * self.cell_size
+        return (x, y, x + self.cell_size, y + self.cell_size)
+
+
+@dataclass(frozen=True)
+class Sample:
+    """One viewpoint of the benchmark: a real training view, a synthesis target or a test view."""
+
+    id: str
+    split: Split
+    place: int
+    """Class index, ``cell_rank * orientations + orientation``."""
+    cell: int
+    """Grid-cell index."""
+    orientation: int
+    pose: Pose
+    vo: float | None = None
+    """Test views: view overlap (%) with the class's training viewpoint."""
+    vo_landmark: float | None = None
+    """Test views: view overlap (%) with the cell's real training view."""
+    level: int | None = None
+    """Test views: difficulty level 1, 2 or 3."""
+
+
+@dataclass(frozen=True)
+class Plan:
+    """Every viewpoint of a benchmark workspace, before anything is rendered."""
+
+    workspace: str
+    config: ProtocolConfig
+    grid: Grid
+    cells: tuple[int, ...]
+    """Selected grid cells, in class order."""
+    samples: tuple[Sample, ...]
+
+    @property
+    def num_classes(self) -> int:
+        return len(self.cells) * self.config.orientations
+
+    def split(self, split: Split) -> list[Sample]:
+        return [s for s in self.samples if s.split == split]
+
+    def level_counts(self) -> dict[int, int]:
+        counts = {1: 0, 2: 0, 3: 0}
+        for s in self.split("test"):
+            counts[s.level] += 1  # type: ignore[index]
+        return counts
+
+
+def level_of(vo: float, bounds: tuple[float, float] = (60.0, 30.0)) -> int:
+    """Difficulty level of a view overlap: 1 above ``bounds[0]``, 2 above ``bounds[1]``, else 3."""
+    return 1 if vo > bounds[0] else 2 if vo > bounds[1] else 3
+
+
+class Protocol:
+    """The protocol for one floor plan and camera (see the module docstring)."""
+
+    def __init__(self, floor_plan: FloorPlan, camera: Camera, config: ProtocolConfig | None = None) -> None:
+        self.plan_geometry = floor_plan
+        self.camera = camera
+        self.config = config or ProtocolConfig()
+        self.grid = Grid.covering(floor_plan.bounds, self.config.cell_size)
+        self.centroids = self.grid.centroids()
+        self.segments = occluder_segments(floor_plan.occluders)
+        self._free = floor_plan.free
+        shapely.prepare(self._free)
+
+    # --- geometry -------------------------------------------------------------
+    def orientation_of(self, yaw: np.ndarray | float) -> np.ndarray:
+        """Heading class of each yaw: bins centred on multiples of ``360 / orientations``."""
+        step = 2 * math.pi / self.config.orientations
+        return np.mod(np.rint(np.asarray(yaw) / step), self.config.orientations).astype(int)
+
+    def heading(self, orientation: int) -> float:
+        return orientation * 2 * math.pi / self.config.orientations
+
+    def rays(self, xy: np.ndarray, yaws: np.ndarray) -> np.ndarray:
+        c = self.config
+        return cast_rays(xy, yaws, self.camera.hfov_deg, self.segments, c.max_range, c.rays)
+
+    def assign(self, xy: np.ndarray, yaws: np.ndarray, distances: np.ndarray | None = None) -> np.ndarray:
+        """``(B,)`` grid cell of each view (``-1`` for none): the nearest centroid in its cone."""
+        xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
+        yaws = np.asarray(yaws, dtype=np.float64).reshape(-1)
+        if distances is None:
+            distances = self.rays(xy, yaws)
+        visible = sees(xy, yaws, distances, self.camera.hfov_deg, self.centroids)  # (B, C)
+        dist = np.linalg.norm(self.centroids[None] - xy[:, None], axis=-1)
+        dist = np.where(visible, dist, np.inf)
+        cell = dist.argmin(axis=1)
+        return np.where(np.isfinite(dist.min(axis=1)), cell, -1)
+
+    def is_free(self, xy: np.ndarray) -> np.ndarray:
+        xy = np.asarray(xy).reshape(-1, 2)
+        return shapely.contains_xy(self._free, xy[:, 0], xy[:, 1])
+
+    def polygon(self, pose: Pose, distances: np.ndarray | None = None) -> shapely.Polygon:
+        if distances is None:
+            distances = self.rays(np.array([[pose.x, pose.y]]), np.array([pose.yaw]))[0]
+        return visibility_polygon(pose, self.camera.hfov_deg, distances)
+
+    def canonical_viewpoint(self, cell: int, orientation: int, height: float) -> Pose | None:
+        """A pose of class ``(cell, orientation)`` looking at the centroid from behind it, or None."""
+        yaw = self.heading(orientation)
+        back = -np.array([math.cos(yaw), math.sin(yaw)])
+        for scale in (1.0, 0.75, 1.25, 0.5, 1.5):
+            xy = self.centroids[cell] + back * self.config.viewpoint_distance * scale
+            if self.is_free(xy)[0] and self.assign(xy[None], np.array([yaw]))[0] == cell:
+                return Pose(float(xy[0]), float(xy[1]), yaw, height)
+        return None
+
+    # --- the plan -------------------------------------------------------------
+    def plan(self, workspace: str, height: float = 1.5, progress: Callable[[int, int], None] | None = None) -> Plan:
+        """Draw the cells, the training and target viewpoints and the test views.
+
+        Args:
+            workspace: name recorded in the plan.
+            height: camera height of every viewpoint.
+            progress: called with ``(test views found, test views wanted)``.
+
+        Raises:
+            InputError: the floor plan has fewer eligible cells than ``cells``.
+        """
+        c = self.config
+        rng = np.random.default_rng(c.seed)
+        chosen: list[tuple[int, list[Pose]]] = []
+        free_cells = [k for k in rng.permutation(len(self.centroids)) if self.is_free(self.centroids[k])[0]]
+        for cell in free_cells:
+            views = [self.canonical_viewpoint(int(cell), o, height) for o in range(c.orientations)]
+            if all(v is not None for v in views):
+                chosen.append((int(cell), views))  # type: ignore[arg-type]
+                if len(chosen) == c.cells:
+                    break
+        if len(chosen) < c.cells:
+            raise InputError(
+                f"workspace {workspace!r}: only {len(chosen)} of its {len(self.centroids)} cells of {c.cell_size} m can be "
+                f"seen from all {c.orientations} headings, {c.cells} wanted; lower protocol.cells or change protocol.cell_size"
+            )
+        samples: list[Sample] = []
+        training: dict[int, Pose] = {}  # class -> its training viewpoint
+        real_place: list[int] = []  # cell rank -> the class of its real view
+        for rank, (cell, views) in enumerate(chosen):
+            real = int(rng.integers(c.orientations))
+            for o, pose in enumerate(views):
+                place = rank * c.orientations + o
+                split: Split = "train" if o == real else "target"
+                samples.append(Sample(f"{split}-{place:04d}", split, place, cell, o, pose))
+                training[place] = pose
+            real_place.append(rank * c.orientations + real)
+        samples.extend(self._sample_tests([cell for cell, _ in chosen], training, real_place, height, rng, progress))
+        return Plan(workspace, c, self.grid, tuple(cell for cell, _ in chosen), tuple(samples))
+
+    def _sample_tests(
+        self,
+        cells: list[int],
+        training: dict[int, Pose],
+        real_place: list[int],
+        height: float,
+        rng: np.random.Generator,
+        progress: Callable[[int, int], None] | None,
+    ) -> list[Sample]:
+        c = self.config
+        rank_of = {cell: rank for rank, cell in enumerate(cells)}
+        wanted = c.test_per_class * len(cells) * c.orientations
+        counts = np.zeros(len(cells) * c.orientations, dtype=int)
+        polygons = {place: self.polygon(pose) for place, pose in training.items()}
+        tests: list[Sample] = []
+        tried, batch = 0, 64
+        while len(tests) < wanted and tried < wanted * c.max_candidates:
+            # Draw around cells that still need views, so rare classes do not starve.
+            short = np.flatnonzero(counts < c.test_per_class) // c.orientations
+            around = self.centroids[np.asarray(cells)[rng.choice(short, size=batch)]]
+            r = c.test_radius * np.sqrt(rng.random(batch))
+            phi = rng.random(batch) * 2 * math.pi
+            xy = around + np.stack([r * np.cos(phi), r * np.sin(phi)], axis=-1)
+            yaw = rng.random(batch) * 2 * math.pi
+            tried += batch
+            free = self.is_free(xy)
+            xy, yaw = xy[free], yaw[free]
+            if not len(xy):
+                continue
+            distances = self.rays(xy, yaw)
+            cell = self.assign(xy, yaw, distances)
+            orientation = self.orientation_of(yaw)
+            for k in range(len(xy)):
+                if cell[k] not in rank_of:
+                    continue
+                place = rank_of[cell[k]] * c.orientations + int(orientation[k])
+                if counts[place] >= c.test_per_class:
+                    continue
+                pose = Pose(float(xy[k, 0]), float(xy[k, 1]), float(yaw[k]), height)
+                seen = visibility_polygon(pose, self.camera.hfov_deg, distances[k])
+                vo = view_overlap(seen, polygons[place])
+                vo_landmark = view_overlap(seen, polygons[real_place[place // c.orientations]])
+                level = level_of(vo if c.level_reference == "class" else vo_landmark, c.level_bounds)
+                tests.append(Sample(f"test-{place:04d}-{counts[place]:05d}", "test", place, int(cell[k]), int(orientation[k]), pose, vo, vo_landmark, level))
+                counts[place] += 1
+            if progress is not None:
+                progress(len(tests), wanted)
+        if len(tests) < wanted:
+            missing = int((c.test_per_class - counts).clip(0).sum())
+            raise InputError(
+                f"protocol: {missing} of {wanted} test views could not be placed after {tried} candidate poses; "
+                f"raise protocol.test_radius or protocol.max_candidates, or lower protocol.test_per_class"
+            )
+        return sorted(tests, key=lambda s: s.id)
+
