@@ -127,3 +127,33 @@ def test_config_schema_lists_installed_plugins():
 def test_no_arguments_shows_help():
     result = runner.invoke(app, [])
     assert "variants" in result.output and "plugins" in result.output
+
+
+def test_workspace_build_and_show(tmp_path, stand_ins):
+    out = tmp_path / "ws"
+    args = ["workspace", "build", "--source", "test-wall", "--option", "size=8", "--cells", "2", "--test-per-class", "2", "--out", str(out)]
+    result = runner.invoke(app, args)
+    assert result.exit_code == 0, result.output
+    assert f"{out}: 24 classes, 2 real training views, 48 test views" in result.output
+    # A second build finds everything done; other settings are refused without --overwrite.
+    assert runner.invoke(app, args).exit_code == 0
+    result = runner.invoke(app, [*args[:-2], "--seed", "9", "--out", str(out)])
+    assert result.exit_code == 1 and "holds a dataset built with other settings (protocol, source, workspace)" in result.stderr
+    result = runner.invoke(app, ["workspace", "show", str(out), "--by", "level"])
+    assert result.exit_code == 0, result.output
+    import cv2
+
+    plan = cv2.imread(str(out / "birdseye-by-level.png"))
+    sheet = cv2.imread(str(out / "contact-sheet.png"))
+    assert plan.shape[0] > 400 and sheet.shape[1] > 128
+    # The plan is mostly light floor with dark walls around it.
+    assert (plan.mean(axis=2) < 100).mean() > 0.01
+
+
+def test_workspace_build_rejects_bad_options(stand_ins, tmp_path):
+    result = runner.invoke(app, ["workspace", "build", "--source", "test-wall", "--option", "size", "--out", str(tmp_path)])
+    assert result.exit_code == 1 and "expected key=value" in result.stderr
+    result = runner.invoke(app, ["workspace", "build", "--source", "test-wall", "-o", "size=0.5", "--out", str(tmp_path)])
+    assert result.exit_code == 1 and "workspace.size: Input should be greater than 1" in result.stderr
+    result = runner.invoke(app, ["workspace", "show", str(tmp_path / "none")])
+    assert result.exit_code == 1 and "not an ssga dataset" in result.stderr
