@@ -6,9 +6,9 @@ Layout of a dataset folder::
     floorplan.json   the floor plan (FloorPlan.to_json), for visibility and plots
     plan.json        the grid, the selected cells and every sample (written before rendering)
     rgb/<id>.png     RGB, 8-bit
-    depth/<id>.png   metric planar depth, 16-bit millimetres (0 = unknown)
+    depth/<id>.png   metric planar depth, 16-bit millimetres (0 = unknown), where the source has it
     semantic/<id>.png, instance/<id>.png
-                     ids + 1, 16-bit (0 = unknown)
+                     ids + 1, 16-bit (0 = unknown), where the source has them
     manifest.jsonl   one line per view: id, split, place, cell, orientation, pose, VO, level,
                      and its files; written last, so its presence means the build finished
 
@@ -28,6 +28,7 @@ from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 from ssga_core.data import View
 from ssga_core.errors import InputError
 from ssga_core.geometry import Camera, Pose
@@ -44,7 +45,7 @@ from ssga_core.io import (
     write_png,
 )
 from ssga_core.protocol import Grid, Plan, Protocol, ProtocolConfig, Sample
-from ssga_core.workspace import FloorPlan, Workspace
+from ssga_core.workspace import AnyWorkspace, FloorPlan, Workspace
 
 FORMAT = 1
 CHANNELS = ("rgb", "depth", "semantic", "instance")
@@ -65,7 +66,7 @@ def sample_from_record(record: dict[str, Any]) -> Sample:
         raise InputError(f"sample record {record.get('id', record)!r}: missing or bad field ({exc})") from None
 
 
-def _header(workspace: Workspace, source: dict[str, Any], protocol: ProtocolConfig) -> dict[str, Any]:
+def _header(workspace: AnyWorkspace, source: dict[str, Any], protocol: ProtocolConfig) -> dict[str, Any]:
     cam = workspace.camera
     return {
         "format": FORMAT,
@@ -77,7 +78,7 @@ def _header(workspace: Workspace, source: dict[str, Any], protocol: ProtocolConf
 
 
 def build_dataset(
-    workspace: Workspace,
+    workspace: AnyWorkspace,
     out: str | Path,
     *,
     source: dict[str, Any],
@@ -89,7 +90,8 @@ def build_dataset(
     """Plan and render a benchmark workspace into ``out`` (resuming a build left unfinished).
 
     Args:
-        workspace: the opened workspace to render.
+        workspace: the opened workspace: rendered at the plan's poses, or, if it is a
+            captured workspace, its captures selected by the protocol and copied.
         out: the dataset folder.
         source: the workspace source's name and config, recorded so a resumed build
             can refuse a folder that holds another workspace.
@@ -110,35 +112,44 @@ def build_dataset(
     write_json(out / "dataset.json", header)
     write_json(out / "floorplan.json", workspace.floor_plan.to_json())
 
+    captured = not isinstance(workspace, Workspace)
     if (out / "plan.json").exists():
         plan = _read_plan(out, workspace.name, protocol)
     else:
-        report = (lambda done, total: progress("plan", done, total)) if progress else None
-        plan = Protocol(workspace.floor_plan, workspace.camera, protocol).plan(workspace.name, height, report)
+        protocol_run = Protocol(workspace.floor_plan, workspace.camera, protocol)
+        if captured:
+            plan = protocol_run.select(workspace.name, workspace.captures)
+        else:
+            report = (lambda done, total: progress("plan", done, total)) if progress else None
+            plan = protocol_run.plan(workspace.name, height, report)
         write_json(out / "plan.json", {"grid": asdict(plan.grid), "cells": list(plan.cells), "samples": [sample_record(s) for s in plan.samples]})
 
-    for done, sample in enumerate(plan.samples, 1):
-        paths = {ch: out / ch / f"{sample.id}.png" for ch in CHANNELS}
-        if not all(p.exists() for p in paths.values()):
-            _write_view(workspace.render(sample.pose), paths)
+    # A captured workspace cannot show its synthesis targets: they have no image.
+    to_write = [s for s in plan.samples if not (captured and s.split == "target")]
+    for done, sample in enumerate(to_write, 1):
+        if not (out / "rgb" / f"{sample.id}.png").exists():
+            view = workspace.load(sample.source) if captured else workspace.render(sample.pose)
+            _write_view(view, out, sample.id)
         if progress:
-            progress("render", done, len(plan.samples))
-    write_jsonl(out / "manifest.jsonl", (_manifest_row(s) for s in plan.samples))
+            progress("render" if not captured else "copy", done, len(to_write))
+    write_jsonl(out / "manifest.jsonl", (_manifest_row(out, s) for s in plan.samples))
     return Dataset.open(out)
 
 
-def _write_view(view: View, paths: dict[str, Path]) -> None:
-    # Depth and ids first, RGB last: a view counts as written only once all four exist.
-    if view.depth is None or view.semantic is None or view.instance is None:
-        raise InputError("workspace render: a benchmark view needs depth and semantic and instance ids")
-    write_png(paths["depth"], depth_to_png16(view.depth))
-    write_png(paths["semantic"], ids_to_png16(view.semantic, "semantic"))
-    write_png(paths["instance"], ids_to_png16(view.instance, "instance"))
-    write_png(paths["rgb"], view.rgb)
+def _write_view(view: View, out: Path, sample_id: str) -> None:
+    # RGB last: a view counts as written once its RGB file exists, and each file appears whole.
+    if view.depth is not None:
+        write_png(out / "depth" / f"{sample_id}.png", depth_to_png16(view.depth))
+    for name in ("semantic", "instance"):
+        ids = getattr(view, name)
+        if ids is not None:
+            write_png(out / name / f"{sample_id}.png", ids_to_png16(ids, name))
+    write_png(out / "rgb" / f"{sample_id}.png", view.rgb)
 
 
-def _manifest_row(sample: Sample) -> dict[str, Any]:
-    return {**sample_record(sample), **{ch: f"{ch}/{sample.id}.png" for ch in CHANNELS}}
+def _manifest_row(out: Path, sample: Sample) -> dict[str, Any]:
+    files = {ch: f"{ch}/{sample.id}.png" for ch in CHANNELS}
+    return {**sample_record(sample), **{ch: (path if (out / path).exists() else None) for ch, path in files.items()}}
 
 
 def _read_plan(out: Path, name: str, config: ProtocolConfig) -> Plan:
@@ -192,12 +203,17 @@ class Dataset:
     def view(self, sample: Sample) -> View:
         """Load a sample's view (RGB, depth, semantic and instance ids)."""
         row = self._rows.get(sample.id)
-        if row is None:
-            raise InputError(f"{self.root}: no view {sample.id!r} in manifest.jsonl")
+        if row is None or row.get("rgb") is None:
+            raise InputError(f"{self.root}: no image of view {sample.id!r} in manifest.jsonl")
         rgb = read_png(self.root / row["rgb"], color=True)
-        depth = depth_from_png16(read_png(self.root / row["depth"], color=False))
-        semantic = ids_from_png16(read_png(self.root / row["semantic"], color=False))
-        instance = ids_from_png16(read_png(self.root / row["instance"], color=False))
+
+        def single(name: str) -> np.ndarray | None:
+            return read_png(self.root / row[name], color=False) if row.get(name) else None
+
+        depth, semantic, instance = single("depth"), single("semantic"), single("instance")
+        depth = depth_from_png16(depth) if depth is not None else None
+        semantic = ids_from_png16(semantic) if semantic is not None else None
+        instance = ids_from_png16(instance) if instance is not None else None
         try:
             return View(rgb=rgb, pose=sample.pose, camera=self.camera, depth=depth, semantic=semantic, instance=instance)
         except InputError as exc:

@@ -35,7 +35,7 @@ Definitions (the paper leaves the last three open; these are ssga's):
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Literal
 
@@ -118,6 +118,8 @@ class Sample:
     """Test views: view overlap (%) with the cell's real training view."""
     level: int | None = None
     """Test views: difficulty level 1, 2 or 3."""
+    source: int | None = None
+    """For a captured workspace: the index of the captured view this sample is."""
 
 
 @dataclass(frozen=True)
@@ -162,6 +164,9 @@ class Protocol:
         self.segments = occluder_segments(floor_plan.occluders)
         self._free = floor_plan.free
         shapely.prepare(self._free)
+        # Captured poses may stand a little closer to walls than the plan's free floor allows.
+        self._free_tolerant = floor_plan.free.buffer(0.1)
+        shapely.prepare(self._free_tolerant)
 
     # --- geometry -------------------------------------------------------------
     def orientation_of(self, yaw: np.ndarray | float) -> np.ndarray:
@@ -209,7 +214,8 @@ class Protocol:
 
     # --- the plan -------------------------------------------------------------
     def plan(self, workspace: str, height: float = 1.5, progress: Callable[[int, int], None] | None = None) -> Plan:
-        """Draw the cells, the training and target viewpoints and the test views.
+        """Draw the cells, the training and target viewpoints and the test views, for a
+        workspace that renders any pose.
 
         Args:
             workspace: name recorded in the plan.
@@ -217,36 +223,125 @@ class Protocol:
             progress: called with ``(test views found, test views wanted)``.
 
         Raises:
-            InputError: the floor plan has fewer eligible cells than ``cells``.
+            InputError: the floor plan has fewer eligible cells than ``cells``, or test
+                views cannot be placed.
         """
         c = self.config
         rng = np.random.default_rng(c.seed)
-        chosen: list[tuple[int, list[Pose]]] = []
-        free_cells = [k for k in rng.permutation(len(self.centroids)) if self.is_free(self.centroids[k])[0]]
-        for cell in free_cells:
-            views = [self.canonical_viewpoint(int(cell), o, height) for o in range(c.orientations)]
-            if all(v is not None for v in views):
-                chosen.append((int(cell), views))  # type: ignore[arg-type]
-                if len(chosen) == c.cells:
-                    break
-        if len(chosen) < c.cells:
-            raise InputError(
-                f"workspace {workspace!r}: only {len(chosen)} of its {len(self.centroids)} cells of {c.cell_size} m can be "
-                f"seen from all {c.orientations} headings, {c.cells} wanted; lower protocol.cells or change protocol.cell_size"
-            )
-        samples: list[Sample] = []
-        training: dict[int, Pose] = {}  # class -> its training viewpoint
-        real_place: list[int] = []  # cell rank -> the class of its real view
-        for rank, (cell, views) in enumerate(chosen):
-            real = int(rng.integers(c.orientations))
-            for o, pose in enumerate(views):
-                place = rank * c.orientations + o
-                split: Split = "train" if o == real else "target"
-                samples.append(Sample(f"{split}-{place:04d}", split, place, cell, o, pose))
-                training[place] = pose
-            real_place.append(rank * c.orientations + real)
+        free_cells = [int(k) for k in rng.permutation(len(self.centroids)) if self.is_free(self.centroids[k])[0]]
+        chosen = self._choose_cells(free_cells, height, workspace)
+        reals = [int(rng.integers(c.orientations)) for _ in chosen]
+        samples, training, real_place = self._training_samples(chosen, reals, {})
         samples.extend(self._sample_tests([cell for cell, _ in chosen], training, real_place, height, rng, progress))
         return Plan(workspace, c, self.grid, tuple(cell for cell, _ in chosen), tuple(samples))
+
+    def select(self, workspace: str, captures: Sequence[Pose]) -> Plan:
+        """The plan for a captured workspace: training and test views chosen among ``captures``.
+
+        Each capture is assigned to its class; ``cells`` cells that have captures (and
+        canonical viewpoints for every heading) are drawn; each gets as its real image a
+        random capture of a random class that has one, and up to ``test_per_class`` other
+        captures per class as test views. Targets are canonical viewpoints, as for
+        rendered workspaces.
+
+        Raises:
+            InputError: a capture stands outside the floor plan's free floor, or too few
+                cells have captures.
+        """
+        c = self.config
+        rng = np.random.default_rng(c.seed)
+        xy = np.array([[p.x, p.y] for p in captures], dtype=np.float64).reshape(-1, 2)
+        yaw = np.array([p.yaw for p in captures], dtype=np.float64)
+        inside = shapely.contains_xy(self._free_tolerant, xy[:, 0], xy[:, 1])
+        if not inside.all():
+            k = int(np.flatnonzero(~inside)[0])
+            raise InputError(
+                f"workspace {workspace!r}: capture {k} at ({xy[k, 0]:.2f}, {xy[k, 1]:.2f}) stands outside the floor plan's free "
+                f"floor ({int((~inside).sum())} captures do); check the poses' frame and the floor plan"
+            )
+        distances = self.rays(xy, yaw)
+        cells, orientations = self.assign(xy, yaw, distances), self.orientation_of(yaw)
+        by_class: dict[tuple[int, int], list[int]] = {}
+        for k, key in enumerate(zip(cells.tolist(), orientations.tolist())):
+            if key[0] >= 0:
+                by_class.setdefault(key, []).append(k)
+        height = float(np.median([p.height for p in captures])) if len(captures) else 1.5
+        with_captures = sorted({cell for cell, _ in by_class})
+        chosen = self._choose_cells([with_captures[i] for i in rng.permutation(len(with_captures))], height, workspace)
+        reals, train_index = [], {}
+        for rank, (cell, _) in enumerate(chosen):
+            real = int(rng.choice([o for o in range(c.orientations) if (cell, o) in by_class]))
+            reals.append(real)
+            train_index[rank * c.orientations + real] = int(rng.choice(by_class[(cell, real)]))
+        samples, training, real_place = self._training_samples(chosen, reals, {p: captures[k] for p, k in train_index.items()}, train_index)
+        polygons = {place: self.polygon(pose) for place, pose in training.items()}
+        for rank, (cell, _) in enumerate(chosen):
+            for o in range(c.orientations):
+                place = rank * c.orientations + o
+                pool = [k for k in by_class.get((cell, o), []) if k != train_index.get(place)]
+                for n, k in enumerate(sorted(rng.permutation(pool)[: c.test_per_class].tolist())):
+                    samples.append(self._test_sample(place, cell, o, captures[k], distances[k], polygons, real_place, n, source=k))
+        return Plan(workspace, c, self.grid, tuple(cell for cell, _ in chosen), tuple(samples))
+
+    def _choose_cells(self, candidates: list[int], height: float, workspace: str) -> list[tuple[int, list[Pose]]]:
+        """The first ``cells`` candidates whose every heading has a canonical viewpoint."""
+        c = self.config
+        chosen: list[tuple[int, list[Pose]]] = []
+        for cell in candidates:
+            views = [self.canonical_viewpoint(cell, o, height) for o in range(c.orientations)]
+            if all(v is not None for v in views):
+                chosen.append((cell, views))  # type: ignore[arg-type]
+                if len(chosen) == c.cells:
+                    return chosen
+        raise InputError(
+            f"workspace {workspace!r}: only {len(chosen)} of its {len(self.centroids)} cells of {c.cell_size} m can be "
+            f"seen from all {c.orientations} headings, {c.cells} wanted; lower protocol.cells or change protocol.cell_size"
+        )
+
+    def _training_samples(
+        self,
+        chosen: list[tuple[int, list[Pose]]],
+        reals: list[int],
+        real_poses: dict[int, Pose],
+        sources: dict[int, int] | None = None,
+    ) -> tuple[list[Sample], dict[int, Pose], list[int]]:
+        """The real training sample and the synthesis targets of each chosen cell.
+
+        Returns the samples, each class's training viewpoint, and each cell's real class.
+        """
+        c = self.config
+        samples: list[Sample] = []
+        training: dict[int, Pose] = {}
+        real_place: list[int] = []
+        for rank, ((cell, views), real) in enumerate(zip(chosen, reals)):
+            real_place.append(rank * c.orientations + real)
+            for o, canonical in enumerate(views):
+                place = rank * c.orientations + o
+                split: Split = "train" if o == real else "target"
+                pose = real_poses.get(place, canonical)
+                source = (sources or {}).get(place)
+                samples.append(Sample(f"{split}-{place:04d}", split, place, cell, o, pose, source=source))
+                training[place] = pose
+        return samples, training, real_place
+
+    def _test_sample(
+        self,
+        place: int,
+        cell: int,
+        orientation: int,
+        pose: Pose,
+        distances: np.ndarray,
+        polygons: dict[int, shapely.Polygon],
+        real_place: list[int],
+        number: int,
+        source: int | None = None,
+    ) -> Sample:
+        c = self.config
+        seen = visibility_polygon(pose, self.camera.hfov_deg, distances)
+        vo = view_overlap(seen, polygons[place])
+        vo_landmark = view_overlap(seen, polygons[real_place[place // c.orientations]])
+        level = level_of(vo if c.level_reference == "class" else vo_landmark, c.level_bounds)
+        return Sample(f"test-{place:04d}-{number:05d}", "test", place, cell, orientation, pose, vo, vo_landmark, level, source)
 
     def _sample_tests(
         self,
@@ -287,11 +382,7 @@ class Protocol:
                 if counts[place] >= c.test_per_class:
                     continue
                 pose = Pose(float(xy[k, 0]), float(xy[k, 1]), float(yaw[k]), height)
-                seen = visibility_polygon(pose, self.camera.hfov_deg, distances[k])
-                vo = view_overlap(seen, polygons[place])
-                vo_landmark = view_overlap(seen, polygons[real_place[place // c.orientations]])
-                level = level_of(vo if c.level_reference == "class" else vo_landmark, c.level_bounds)
-                tests.append(Sample(f"test-{place:04d}-{counts[place]:05d}", "test", place, int(cell[k]), int(orientation[k]), pose, vo, vo_landmark, level))
+                tests.append(self._test_sample(place, int(cell[k]), int(orientation[k]), pose, distances[k], polygons, real_place, int(counts[place])))
                 counts[place] += 1
             if progress is not None:
                 progress(len(tests), wanted)
@@ -302,4 +393,3 @@ class Protocol:
                 f"raise protocol.test_radius or protocol.max_candidates, or lower protocol.test_per_class"
             )
         return sorted(tests, key=lambda s: s.id)
-

@@ -29,7 +29,7 @@ from ssga_core.errors import InputError
 from ssga_core.geometry import Pose
 
 if TYPE_CHECKING:
-    from ssga_core.workspace import Workspace
+    from ssga_core.workspace import AnyWorkspace
 
 
 class StageConfig(BaseModel):
@@ -209,8 +209,10 @@ class WorkspaceSource(Stage):
     produces = frozenset({Data.RGB})
 
     @abstractmethod
-    def open(self) -> Workspace:
-        """Open the workspace this source's config describes."""
+    def open(self) -> AnyWorkspace:
+        """Open the workspace this source's config describes: one that renders any pose
+        (:class:`~ssga_core.workspace.Workspace`) or a set of captured views
+        (:class:`~ssga_core.workspace.CapturedWorkspace`)."""
 
 
 STAGE_BASES: dict[str, type[Stage]] = {

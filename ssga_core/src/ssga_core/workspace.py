@@ -7,6 +7,7 @@ it by the core, whatever the source.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any, Protocol, runtime_checkable
 
@@ -84,6 +85,25 @@ def _polygon(rings: Any) -> shapely.Polygon:
 
 
 @runtime_checkable
+class CapturedWorkspace(Protocol):
+    """A set of views captured by a robot or exported from a simulator; it cannot render new poses.
+
+    The benchmark protocol selects its training and test views among the captures
+    instead of sampling poses (:meth:`ssga_core.protocol.Protocol.select`).
+    """
+
+    name: str
+    camera: Camera
+    floor_plan: FloorPlan
+    captures: Sequence[Pose]
+    """The pose of each captured view."""
+
+    def load(self, index: int) -> View:
+        """The captured view ``index`` (RGB; depth and semantic ids where captured)."""
+        ...
+
+
+@runtime_checkable
 class Workspace(Protocol):
     """A scene that can show what a camera at any pose sees."""
 
@@ -94,3 +114,6 @@ class Workspace(Protocol):
     def render(self, pose: Pose) -> View:
         """The view from ``pose`` (RGB, and depth and semantic ids if the source has them)."""
         ...
+
+
+AnyWorkspace = Workspace | CapturedWorkspace

@@ -1,0 +1,1 @@
+"""A folder of captured images with poses, as an ssga workspace."""

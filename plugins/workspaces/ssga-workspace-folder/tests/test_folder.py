@@ -1,0 +1,107 @@
+"""A folder of captures made from the stand-in wall workspace, run through the protocol."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+from ssga_workspace_folder.plugin import FolderConfig, FolderWorkspaceSource
+
+from ssga_core import InputError, Pose
+from ssga_core.dataset import build_dataset
+from ssga_core.io import depth_to_png16, write_json, write_png
+from ssga_core.protocol import ProtocolConfig
+from ssga_core.testing.stages import WallWorkspaceSource
+
+
+def make_folder(root, n=400, seed=0):
+    """Captures at random free poses of the stand-in wall room, with depth."""
+    wall = WallWorkspaceSource().open()
+    rng = np.random.default_rng(seed)
+    rows = []
+    (root / "images").mkdir(parents=True)
+    for k in range(n):
+        x, y = rng.uniform(-4, 4, size=2)
+        pose = Pose(float(x), float(y), float(rng.uniform(-math.pi, math.pi)))
+        view = wall.render(pose)
+        write_png(root / "images" / f"{k:04d}.png", view.rgb)
+        write_png(root / "images" / f"{k:04d}-depth.png", depth_to_png16(view.depth))
+        rows.append({"rgb": f"images/{k:04d}.png", "depth": f"images/{k:04d}-depth.png", "x": pose.x, "y": pose.y, "yaw": pose.yaw})
+    (root / "captures.jsonl").write_text("".join(json.dumps(r) + "\n" for r in rows))
+    write_json(root / "floorplan.json", wall.floor_plan.to_json())
+    return rows
+
+
+def open_folder(root, **kw):
+    return FolderWorkspaceSource(FolderConfig(path=root, **kw)).open()
+
+
+def test_is_installed(ssga_installed_registry):
+    assert ssga_installed_registry.entry("workspace", "folder").plugin.distribution == "ssga-workspace-folder"
+
+
+def test_the_protocol_selects_training_and_test_views_among_captures(tmp_path):
+    rows = make_folder(tmp_path / "scene")
+    ws = open_folder(tmp_path / "scene")
+    assert (ws.camera.width, ws.camera.height, ws.camera.focal_px) == (256, 256, pytest.approx(128.0))
+    ds = build_dataset(ws, tmp_path / "ds", source={"name": "folder"}, protocol=ProtocolConfig(cells=3, test_per_class=2, seed=1))
+    train, tests, targets = ds.split("train"), ds.split("test"), ds.split("target")
+    assert len(train) == 3 and len(targets) == 33
+    assert tests and all(s.source is not None for s in train + tests)
+    assert {s.source for s in train}.isdisjoint({s.source for s in tests})
+    # A selected view is the capture itself, pose and pixels.
+    s = tests[0]
+    assert (s.pose.x, s.pose.y) == pytest.approx((rows[s.source]["x"], rows[s.source]["y"]))
+    np.testing.assert_array_equal(ds.view(s).rgb, ws.load(s.source).rgb)
+    assert ds.view(s).depth is not None and ds.view(s).semantic is None
+    with pytest.raises(InputError, match="no image of view"):
+        ds.view(targets[0])
+
+
+def test_habitat_poses_and_degrees(tmp_path):
+    make_folder(tmp_path, n=1)
+    row = {"rgb": "images/0000.png", "position": [1.0, 1.5, -2.0], "rotation": [1.0, 0.0, 0.0, 0.0]}
+    (tmp_path / "captures.jsonl").write_text(json.dumps(row) + "\n" + json.dumps({"rgb": "images/0000.png", "x": 0, "y": 0, "yaw": 90}) + "\n")
+    ws = open_folder(tmp_path, yaw_in_degrees=True)
+    assert ws.captures[0] == Pose(1.0, 2.0, math.pi / 2, 1.5)
+    assert ws.captures[1].yaw == pytest.approx(math.pi / 2)
+
+
+@pytest.mark.parametrize(
+    ("line", "message"),
+    [
+        ({"rgb": "images/missing.png", "x": 0, "y": 0, "yaw": 0}, r"captures.jsonl:2: rgb image .*missing.png does not exist"),
+        ({"rgb": "images/0000.png", "x": 0, "yaw": 0}, r"captures.jsonl:2: expected rgb and a pose"),
+        ({"x": 0, "y": 0, "yaw": 0}, r"captures.jsonl:2: no rgb image named"),
+    ],
+)
+def test_bad_capture_lines_name_the_line(tmp_path, line, message):
+    make_folder(tmp_path, n=1)
+    with (tmp_path / "captures.jsonl").open("a") as f:
+        f.write(json.dumps(line) + "\n")
+    with pytest.raises(InputError, match=message):
+        open_folder(tmp_path)
+
+
+def test_a_pose_outside_the_plan_is_named(tmp_path):
+    make_folder(tmp_path, n=30)
+    with (tmp_path / "captures.jsonl").open("a") as f:
+        f.write(json.dumps({"rgb": "images/0000.png", "x": 40.0, "y": 0.0, "yaw": 0.0}) + "\n")
+    ws = open_folder(tmp_path)
+    with pytest.raises(InputError, match=r"capture 30 at \(40.00, 0.00\) stands outside the floor plan's free floor"):
+        build_dataset(ws, tmp_path / "ds", source={"name": "folder"}, protocol=ProtocolConfig(cells=1))
+
+
+def test_broken_files_are_named(tmp_path):
+    make_folder(tmp_path, n=2)
+    (tmp_path / "images" / "0001.png").write_bytes(b"broken")
+    ws = open_folder(tmp_path)
+    with pytest.raises(InputError, match=r"0001.png: not a readable image"):
+        ws.load(1)
+    (tmp_path / "floorplan.json").write_text('{"free": 3}')
+    with pytest.raises(InputError, match=r"floorplan.json: expected \{\"free\""):
+        open_folder(tmp_path)
+    with pytest.raises(InputError, match="no such folder"):
+        open_folder(tmp_path / "nope")
