@@ -60,7 +60,7 @@ def sample_record(sample: Sample) -> dict[str, Any]:
 def sample_from_record(record: dict[str, Any]) -> Sample:
     try:
         pose = Pose(record["x"], record["y"], record["yaw"], record["height"])
-        fields = {k: record.get(k) for k in ("vo", "vo_landmark", "level")}
+        fields = {k: record.get(k) for k in ("vo", "vo_landmark", "level", "source")}
         return Sample(record["id"], record["split"], int(record["place"]), int(record["cell"]), int(record["orientation"]), pose, **fields)
     except (KeyError, TypeError, ValueError) as exc:
         raise InputError(f"sample record {record.get('id', record)!r}: missing or bad field ({exc})") from None
