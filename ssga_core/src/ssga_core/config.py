@@ -130,7 +130,9 @@ class TrainingConfig(_Strict):
     weight_decay: float = Field(default=5e-4, ge=0.0)
     patience: int = Field(default=20, gt=0, description="Epochs without validation improvement before stopping.")
     validation_fraction: float = Field(default=0.2, gt=0.0, lt=1.0, description="Share of training graphs held out for early stopping.")
-    synthetic_per_class: int = Field(default=4, gt=0, description="Jittered synthetic graphs per class without a real image.")
+    synthetic_per_class: int = Field(default=4, gt=0, description="Synthetic graphs per class (variants with S): the target and jittered copies.")
+    jitter_m: float = Field(default=0.15, ge=0.0, description="Jittered copies move up to this far from the training viewpoint, metres.")
+    jitter_deg: float = Field(default=5.0, ge=0.0, description="...and turn up to this much, degrees.")
     seed: int = 0
 
 

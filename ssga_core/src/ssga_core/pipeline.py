@@ -38,6 +38,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ssga_core.cache import FeatureCache
 from ssga_core.data import Data, LocalFeatures, Regions, SceneGraph, Synthesis, View
 from ssga_core.errors import InputError
 from ssga_core.geometry import Pose
@@ -77,7 +78,7 @@ def table_label(variant: Variant, parser: Parser | type[Parser] | None, descript
     return f"{head} ({variant})"
 
 
-def build_graph(bound: BoundVariant, view: View, target: Pose | None = None) -> SceneGraph:
+def build_graph(bound: BoundVariant, view: View, target: Pose | None = None, cache: FeatureCache | None = None) -> SceneGraph:
     """The scene graph of ``view`` under ``bound``'s order.
 
     Args:
@@ -85,6 +86,7 @@ def build_graph(bound: BoundVariant, view: View, target: Pose | None = None) -> 
         view: a real view.
         target: the pose to synthesize for a pseudo-training graph; ``None`` for a
             real image (a query, or a cell's real training view): the query path.
+        cache: reuse the regions and local features of real views computed before.
     """
     if target is None:
         order = bound.variant.query_order
@@ -92,7 +94,7 @@ def build_graph(bound: BoundVariant, view: View, target: Pose | None = None) -> 
         order = bound.variant.order
     else:
         raise InputError(f"variant {bound.variant} has no S: it cannot build a graph for another pose")
-    state = _State(view)
+    state = _State(view, cache=cache)
     for stage in order:
         if stage == "P":
             assert bound.parser is not None
@@ -113,13 +115,14 @@ class _State:
     local_nodes: np.ndarray | None = None
     """Per local feature, its part index fixed before synthesis (-1 for none)."""
     region_features: np.ndarray | None = field(default=None)
+    cache: FeatureCache | None = None
 
     def parse(self, parser: Parser) -> None:
-        self.regions = parser.parse(self.view)
+        self.regions = self.cache.regions(parser, self.view) if self.cache else parser.parse(self.view)
 
     def describe(self, descriptor: Descriptor) -> None:
         if isinstance(descriptor, LocalDescriptor):
-            self.local = descriptor.extract(self.view)
+            self.local = self.cache.local_features(descriptor, self.view) if self.cache else descriptor.extract(self.view)
         elif isinstance(descriptor, RegionDescriptor):
             self.region_features = descriptor.describe(self.view, self.regions)
         else:

@@ -100,11 +100,12 @@ class Descriptor(Stage):
     kind = "descriptor"
     consumes = frozenset({Data.RGB})
 
-    def fit(self, views: Sequence[View]) -> None:
+    def fit(self, views: Sequence[View], labels: Sequence[int] | None = None) -> None:
         """Learn what the descriptor needs from the training views (a dictionary, a classifier).
 
-        Called once per variant before any graph is built, with every training view
-        (real and synthetic). The default learns nothing.
+        Called once per variant before any graph is built, with the training views
+        (each cell's real view and, for variants with S, a synthetic view of each other
+        class) and their place classes. The default learns nothing.
         """
 
     @property

@@ -15,7 +15,7 @@ from ssga_core import hookimpl
 from ssga_core.data import Data, LocalFeatures, Regions, Synthesis, View
 from ssga_core.geometry import Pose
 from ssga_core.stages import Descriptor, LocalDescriptor, Parser, RegionDescriptor, StageConfig, Synthesizer, WorkspaceSource
-from ssga_core.testing.views import make_view
+from ssga_core.testing.views import make_panorama_view, make_view
 from ssga_core.workspace import FloorPlan, Workspace
 
 
@@ -127,7 +127,7 @@ class WallConfig(StageConfig):
 
 
 class WallWorkspaceSource(WorkspaceSource):
-    """An empty square room whose every view is :func:`make_view`'s painted wall at the pose."""
+    """An empty square room painted with vertical colour bands (:func:`make_panorama_view`)."""
 
     name = "test-wall"
     Config = WallConfig
@@ -147,7 +147,7 @@ class _WallWorkspace:
         self.name, self.camera, self.floor_plan, self.seed = name, camera, floor_plan, seed
 
     def render(self, pose: Pose) -> View:
-        return make_view(seed=self.seed, pose=pose)
+        return make_panorama_view(pose, seed=self.seed)
 
 
 

@@ -33,3 +33,24 @@ def make_view(seed: int = 0, size: int = 256, distance: float = 3.0, pose: Pose 
         semantic=semantic,
         instance=semantic.copy(),
     )
+
+
+def make_panorama_view(pose: Pose, seed: int = 0, size: int = 256, distance: float = 3.0, bands: int = 48) -> View:
+    """The view from ``pose`` inside a round room painted with vertical colour bands.
+
+    Each image column shows the band at the world bearing of its ray, so views depend
+    on the heading (and turning moves the content as a camera would) but not on the
+    position: enough for a stand-in workspace whose classes can be learned by heading.
+    Depth is ``distance`` everywhere; semantic and instance ids are the band index.
+    """
+    rng = np.random.default_rng(seed)
+    colours = rng.integers(30, 226, size=(bands, 3))
+    camera = Camera(width=size, height=size)
+    u = np.arange(size)
+    bearing = pose.yaw + np.arctan2(camera.principal_point[0] - u, camera.focal_px)
+    band = (np.floor(np.mod(bearing, 2 * np.pi) / (2 * np.pi) * bands)).astype(np.int32)
+    shade = np.linspace(1.1, 0.8, size)[:, None, None]
+    rgb = np.clip(colours[band][None, :, :] * shade, 0, 255).astype(np.uint8)
+    ids = np.broadcast_to(band, (size, size)).astype(np.int32)
+    depth = np.full((size, size), distance, dtype=np.float32)
+    return View(rgb=rgb, pose=pose, camera=camera, depth=depth, semantic=ids, instance=ids.copy())

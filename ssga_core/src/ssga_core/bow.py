@@ -1,0 +1,445 @@
+"""Bag-of-words node features over local features (paper §3.1.2), shared by every local descriptor.
+
+The paper says of its Patch-NetVLAD (PNV) node features only this: the local features
+of a region are "aggregated into a bag-of-words (BoW) histogram", the "BoW uses a
+prototype dictionary of size k = 100, reciprocal rank (RR)-weighted (Cormack et al.,
+2009), and a naive Bayes nearest-neighbor (NBNN) (Tommasi and Caputo, 2013) similarity
+measure". This module is our reading of that sentence, written once so that every
+local descriptor (dense SIFT, Patch-NetVLAD, ...) reuses it unchanged.
+
+Reading
+-------
+
+* **Prototype dictionary.** k-means (k-means++ init, seeded) over the training views'
+  local features gives ``k`` words; each word keeps up to ``prototypes`` of its member
+  descriptors, drawn at random, as its *prototype set*.
+* **NBNN similarity.** NBNN compares a feature with a class by the distance to the
+  class's *nearest* stored descriptor, not to a class mean (Boiman et al., 2008;
+  Tommasi and Caputo, 2013). Here the classes are the words: a feature's distance to
+  word ``w`` is its squared Euclidean distance to the nearest prototype of ``w``. With
+  ``similarity = "centroid"`` it is the distance to the word's centroid instead (the
+  usual soft-assignment BoW, kept for comparison; ``prototypes = 1`` is not the same:
+  it keeps one random member, not the mean).
+* **Reciprocal-rank weighting.** Each feature ranks the ``k`` words by that distance
+  (rank 1 = nearest; ties go to the lower word index) and votes ``1 / (c + rank)`` for
+  each, or only for its ``top_n`` nearest words (``c = 0``: the plain reciprocal rank;
+  Cormack et al. fuse with ``c = 60``). A feature's code is this ``(k,)`` vote vector:
+  robust soft assignment, which needs no distance scale and is the same whatever the
+  descriptor's units.
+* **Histogram.** A node's feature is the sum of its member features' codes, normalised
+  (``norm``): L2 by default, so that a node's feature does not grow with its number of
+  features (a whole image holds 144, a small part a handful) and dot products between
+  nodes are cosine similarities. A node with no feature gets zeros.
+
+Defaults, with the measurement behind each, are in the README of
+``ssga-descriptor-dense-sift`` (the measurement script ships with that package).
+
+For descriptor authors
+----------------------
+
+Subclass :class:`BoWDescriptor` and write only ``_extract`` (raw local features at
+pixel positions). Give your config a ``bow: BoWConfig`` field (subclass
+:class:`BoWDescriptorConfig`). The base class fits the dictionary on the training
+views' features in :meth:`BoWDescriptor.fit`, encodes and pools in ``_pool``, and its
+``dim`` is ``bow.k``. A Patch-NetVLAD plugin returns its 144 PCA-reduced patch
+features with their image-space centres from ``_extract`` and is done; there is
+nothing descriptor-specific in the BoW step besides the Euclidean distance, so give it
+features for which Euclidean distance is meaningful (L2-normalised PNV or RootSIFT are).
+Fitted dictionaries are plain arrays (:meth:`BagOfWords.state_dict`), to cache on disk.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from typing import Any, ClassVar, Literal
+
+import numpy as np
+from pydantic import Field, model_validator
+
+from ssga_core.data import LocalFeatures, View
+from ssga_core.errors import InputError, SsgaError
+from ssga_core.ranking import ranks
+from ssga_core.stages import LocalDescriptor, StageConfig
+
+_BLOCK = 1 << 22
+"""Most distance entries computed at once (16 MiB of float32): bounds memory for any N, k, m."""
+
+
+class NotFittedError(SsgaError, RuntimeError):
+    """A bag-of-words dictionary was used before it was fitted."""
+
+
+class BoWConfig(StageConfig):
+    """How local features become bag-of-words node features (see :mod:`ssga_core.bow`)."""
+
+    k: int = Field(default=100, ge=2, le=4096, description="Dictionary size: the number of visual words (paper: 100).")
+    similarity: Literal["nbnn", "centroid"] = Field(
+        default="nbnn",
+        description="Distance of a feature to a word: to the word's nearest prototype (NBNN) or to its centroid.",
+    )
+    prototypes: int = Field(
+        default=16, ge=1, le=1024, description="Member descriptors each word keeps as its prototype set (used by NBNN)."
+    )
+    top_n: int | None = Field(
+        default=None, ge=1, description="A feature votes for its top_n nearest words only; None: for all k."
+    )
+    rr_offset: float = Field(
+        default=0.0, ge=0.0, description="c in the vote 1 / (c + rank): 0 is the plain reciprocal rank, Cormack et al. use 60."
+    )
+    norm: Literal["l2", "l1", "none"] = Field(default="l2", description="Normalisation of a node's summed votes.")
+    init: Literal["k-means++", "random"] = Field(default="k-means++", description="k-means initialisation.")
+    iterations: int = Field(default=25, ge=1, le=1000, description="Most k-means (Lloyd) iterations; stops early once stable.")
+    max_train: int = Field(
+        default=200_000, ge=1, description="Most training descriptors k-means sees; more are subsampled (seeded)."
+    )
+    seed: int = Field(default=0, description="Seed of the k-means init, the subsampling and the prototype draw.")
+
+    @model_validator(mode="after")
+    def _top_n_within_k(self) -> BoWConfig:
+        if self.top_n is not None and self.top_n > self.k:
+            raise ValueError(f"top_n ({self.top_n}) cannot exceed k ({self.k})")
+        return self
+
+
+# --------------------------------------------------------------------------- k-means
+
+
+def _as_matrix(name: str, x: np.ndarray, dim: int | None = None) -> np.ndarray:
+    x = np.asarray(x)
+    if x.ndim != 2 or not np.issubdtype(x.dtype, np.number):
+        raise InputError(f"{name}: expected an (N, D) array of numbers, got shape {x.shape} of {x.dtype}")
+    if dim is not None and x.shape[1] != dim:
+        raise InputError(f"{name}: expected {dim}-d descriptors (the dictionary's), got {x.shape[1]}-d")
+    x = np.ascontiguousarray(x, dtype=np.float32)
+    if not np.isfinite(x).all():
+        raise InputError(f"{name}: descriptors contain NaN or infinity")
+    return x
+
+
+def squared_distances(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """``(N, K)`` squared Euclidean distances between the rows of ``x`` and of ``y`` (float32, >= 0)."""
+    d = (x * x).sum(1)[:, None] - 2.0 * (x @ y.T) + (y * y).sum(1)[None, :]
+    return np.maximum(d, 0.0, out=d)
+
+
+def _assign(x: np.ndarray, centroids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Nearest centroid of each row and its squared distance, in blocks of rows."""
+    labels = np.empty(len(x), dtype=np.intp)
+    dist = np.empty(len(x), dtype=np.float32)
+    c2 = (centroids * centroids).sum(1)
+    minus_2c = -2.0 * centroids.T
+    step = max(1, _BLOCK // len(centroids))
+    for s in range(0, len(x), step):
+        xb = x[s : s + step]
+        d = xb @ minus_2c
+        d += c2  # + |x|^2 is the same for every centroid: added to the minimum only
+        lab = d.argmin(1)
+        labels[s : s + step] = lab
+        dist[s : s + step] = np.maximum(np.take_along_axis(d, lab[:, None], 1)[:, 0] + (xb * xb).sum(1), 0.0)
+    return labels, dist
+
+
+def _kmeans_pp(x: np.ndarray, k: int, rng: np.random.Generator) -> np.ndarray:
+    """k-means++ seeding (Arthur and Vassilvitskii, 2007) on at most ``100 k`` rows of ``x``."""
+    if len(x) > 100 * k:
+        x = x[rng.choice(len(x), 100 * k, replace=False)]
+    centres = np.empty((k, x.shape[1]), dtype=np.float32)
+    centres[0] = x[rng.integers(len(x))]
+    closest = squared_distances(x, centres[:1])[:, 0].astype(np.float64)
+    for i in range(1, k):
+        total = closest.sum()
+        # All remaining rows coincide with a centre: any row will do (a duplicate word).
+        j = int(rng.choice(len(x), p=closest / total)) if total > 0 else int(rng.integers(len(x)))
+        centres[i] = x[j]
+        np.minimum(closest, squared_distances(x, centres[i : i + 1])[:, 0], out=closest)
+    return centres
+
+
+def kmeans(
+    x: np.ndarray,
+    k: int,
+    *,
+    iterations: int = 25,
+    init: Literal["k-means++", "random"] = "k-means++",
+    tol: float = 1e-3,
+    rng: np.random.Generator | int = 0,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Lloyd's k-means on the rows of ``x``.
+
+    Stops after ``iterations`` updates, or once at most a fraction ``tol`` of the rows
+    change cluster. An emptied cluster is re-seeded at the row farthest from its
+    centroid, so all ``k`` centroids stay in use as long as ``x`` has ``k`` distinct rows.
+
+    Returns:
+        ``(k, D)`` float32 centroids and ``(N,)`` labels (each row's nearest centroid).
+    """
+    x = _as_matrix("kmeans", x)
+    if not 1 <= k <= len(x):
+        raise InputError(f"kmeans: k = {k} clusters need at least {k} descriptors, got {len(x)}")
+    rng = np.random.default_rng(rng)
+    if init == "k-means++":
+        centroids = _kmeans_pp(x, k, rng)
+    else:
+        centroids = x[rng.choice(len(x), k, replace=False)].copy()
+    labels, dist = _assign(x, centroids)
+    for _ in range(iterations):
+        means, counts = _cluster_means(x, labels, k)
+        filled = counts > 0
+        centroids[filled] = means[filled]
+        empty = np.flatnonzero(~filled)
+        if len(empty):
+            far = np.argsort(-dist, kind="stable")[: len(empty)]
+            centroids[empty] = x[far]
+        new_labels, dist = _assign(x, centroids)
+        changed = np.count_nonzero(new_labels != labels)
+        labels = new_labels
+        if changed <= tol * len(x) and not len(empty):
+            break
+    return centroids, labels
+
+
+def _cluster_means(x: np.ndarray, labels: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
+    """Mean of each cluster's rows (float32; rows of empty clusters undefined) and the cluster sizes."""
+    counts = np.bincount(labels, minlength=k)
+    ends = np.cumsum(counts)
+    grouped = x[np.argsort(labels, kind="stable")]
+    means = np.zeros((k, x.shape[1]), dtype=np.float32)
+    for c in np.flatnonzero(counts):
+        means[c] = grouped[ends[c] - counts[c] : ends[c]].sum(axis=0, dtype=np.float64) / counts[c]
+    return means, counts
+
+
+# --------------------------------------------------------------------------- votes
+
+
+def reciprocal_rank_votes(distances: np.ndarray, top_n: int | None = None, offset: float = 0.0) -> np.ndarray:
+    """``(M, k)`` votes ``1 / (offset + rank)`` of each row's words ranked by ``distances`` (rank 1 = nearest).
+
+    Ties go to the lower word index (:func:`ssga_core.ranking.ranks`). With ``top_n``, only
+    a row's ``top_n`` nearest words get a vote; the others get 0.
+    """
+    distances = np.asarray(distances, dtype=np.float32)
+    r = ranks(-distances, axis=1)
+    votes = (1.0 / (offset + r)).astype(np.float32)
+    if top_n is not None:
+        votes[r > top_n] = 0.0
+    return votes
+
+
+def normalise_rows(x: np.ndarray, norm: Literal["l2", "l1", "none"]) -> np.ndarray:
+    """Rows scaled to unit L2 or L1 norm (all-zero rows stay zero); ``"none"`` returns ``x``."""
+    if norm == "none":
+        return x
+    n = np.linalg.norm(x, axis=1) if norm == "l2" else np.abs(x).sum(1)
+    return np.divide(x, n[:, None], out=np.zeros_like(x), where=n[:, None] > 0)
+
+
+# --------------------------------------------------------------------------- dictionary
+
+
+class BagOfWords:
+    """A prototype dictionary: fit on training descriptors, encode features, pool them into nodes.
+
+    Example::
+
+        bow = BagOfWords(BoWConfig(k=100)).fit(train)       # train: (N, D)
+        codes = bow.encode(features.descriptors)             # (M, k) RR votes
+        nodes = bow.pool(codes, [np.arange(M), part_1, ...])  # (N_nodes, k)
+    """
+
+    def __init__(self, config: BoWConfig | None = None) -> None:
+        self.config = config or BoWConfig()
+        self.centroids: np.ndarray | None = None
+        """``(k, D)`` float32 word centroids, once fitted."""
+        self.prototypes: np.ndarray | None = None
+        """``(k, m, D)`` float32 prototype sets (a word with fewer than ``m`` members repeats them)."""
+
+    def __repr__(self) -> str:
+        state = f"{self.centroids.shape[1]}-d" if self.centroids is not None else "unfitted"
+        return f"BagOfWords({state}, {self.config!r})"
+
+    @property
+    def fitted(self) -> bool:
+        return self.centroids is not None
+
+    @property
+    def dim(self) -> int:
+        """Length of a code and of a node feature: ``k``."""
+        return self.config.k
+
+    def fit(self, descriptors: np.ndarray) -> BagOfWords:
+        """Learn the words from training descriptors ``(N, D)``; returns ``self``.
+
+        Raises:
+            InputError: fewer than ``k`` descriptors (the dictionary would have unused
+                words; lower ``k`` or give more training views), or non-finite values.
+        """
+        cfg = self.config
+        x = _as_matrix("BagOfWords.fit", descriptors)
+        if len(x) < cfg.k:
+            raise InputError(
+                f"bag of words: k = {cfg.k} words need at least {cfg.k} training descriptors, got {len(x)}; "
+                "lower bow.k or fit on more views"
+            )
+        rng = np.random.default_rng(cfg.seed)
+        if len(x) > cfg.max_train:
+            x = x[np.sort(rng.choice(len(x), cfg.max_train, replace=False))]
+        centroids, labels = kmeans(x, cfg.k, iterations=cfg.iterations, init=cfg.init, rng=rng)
+        self.centroids = centroids
+        self.prototypes = _draw_prototypes(x, labels, centroids, cfg.prototypes, rng)
+        return self
+
+    def distances(self, descriptors: np.ndarray) -> np.ndarray:
+        """``(M, k)`` squared distance of each descriptor to each word (NBNN or centroid, per config)."""
+        centroids, prototypes = self._require_fitted()
+        x = _as_matrix("BagOfWords.encode", descriptors, centroids.shape[1])
+        if self.config.similarity == "centroid":
+            return squared_distances(x, centroids)
+        k, m, dim = prototypes.shape
+        flat = prototypes.reshape(k * m, dim)
+        out = np.empty((len(x), k), dtype=np.float32)
+        step = max(1, _BLOCK // (k * m))
+        for s in range(0, len(x), step):
+            out[s : s + step] = squared_distances(x[s : s + step], flat).reshape(-1, k, m).min(axis=2)
+        return out
+
+    def encode(self, descriptors: np.ndarray) -> np.ndarray:
+        """``(M, k)`` float32 reciprocal-rank vote vector of each descriptor ``(M, D)``."""
+        if len(descriptors) == 0:
+            self._require_fitted()
+            return np.zeros((0, self.dim), dtype=np.float32)
+        return reciprocal_rank_votes(self.distances(descriptors), self.config.top_n, self.config.rr_offset)
+
+    def pool(self, codes: np.ndarray, members: Sequence[np.ndarray]) -> np.ndarray:
+        """``(N, k)`` node features: each node's summed member codes, normalised; zeros for an empty node.
+
+        Args:
+            codes: ``(M, k)`` from :meth:`encode`.
+            members: for each node, the indices into ``codes`` of its features.
+        """
+        codes = np.asarray(codes, dtype=np.float32)
+        if codes.ndim != 2 or codes.shape[1] != self.dim:
+            raise InputError(f"BagOfWords.pool: expected (M, {self.dim}) codes, got shape {codes.shape}")
+        out = np.zeros((len(members), self.dim), dtype=np.float32)
+        for i, idx in enumerate(members):
+            idx = np.asarray(idx, dtype=np.intp)
+            if idx.size:
+                out[i] = codes[idx].sum(axis=0)
+        return normalise_rows(out, self.config.norm)
+
+    def state_dict(self) -> dict[str, np.ndarray]:
+        """The fitted dictionary as plain arrays (``centroids``, ``prototypes``), e.g. for ``np.savez``."""
+        centroids, prototypes = self._require_fitted()
+        return {"centroids": centroids.copy(), "prototypes": prototypes.copy()}
+
+    def load_state_dict(self, state: Mapping[str, np.ndarray]) -> None:
+        """Restore a dictionary saved by :meth:`state_dict`; its shapes must match this config."""
+        missing = {"centroids", "prototypes"} - set(state)
+        if missing:
+            raise InputError(f"bag of words state: missing {', '.join(sorted(missing))}")
+        centroids = np.asarray(state["centroids"], dtype=np.float32)
+        prototypes = np.asarray(state["prototypes"], dtype=np.float32)
+        k, m = self.config.k, self.config.prototypes
+        if centroids.ndim != 2 or centroids.shape[0] != k:
+            raise InputError(f"bag of words state: centroids of shape {centroids.shape}, expected ({k}, D) for k = {k}")
+        if prototypes.shape != (k, m, centroids.shape[1]):
+            raise InputError(
+                f"bag of words state: prototypes of shape {prototypes.shape}, expected {(k, m, centroids.shape[1])} "
+                f"for k = {k}, prototypes = {m}"
+            )
+        self.centroids, self.prototypes = centroids.copy(), prototypes.copy()
+
+    def _require_fitted(self) -> tuple[np.ndarray, np.ndarray]:
+        if self.centroids is None or self.prototypes is None:
+            raise NotFittedError("bag of words: the dictionary is not fitted; call fit() on training descriptors first")
+        return self.centroids, self.prototypes
+
+
+def _draw_prototypes(x: np.ndarray, labels: np.ndarray, centroids: np.ndarray, m: int, rng: np.random.Generator) -> np.ndarray:
+    """Up to ``m`` random members per word, repeated to ``m``; the centroid for a word with none."""
+    k, dim = centroids.shape
+    perm = rng.permutation(len(x))
+    order = perm[np.argsort(labels[perm], kind="stable")]  # grouped by word, random within a word
+    counts = np.bincount(labels, minlength=k)
+    starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    out = np.empty((k, m, dim), dtype=np.float32)
+    for w in range(k):
+        if counts[w] == 0:
+            out[w] = centroids[w]
+        else:
+            chosen = order[starts[w] : starts[w] + min(m, counts[w])]
+            out[w] = x[np.resize(chosen, m)]
+    return out
+
+
+# --------------------------------------------------------------------------- descriptor base
+
+
+class BoWDescriptorConfig(StageConfig):
+    """Base config of a :class:`BoWDescriptor`: subclass it and add the descriptor's own fields."""
+
+    bow: BoWConfig = Field(default_factory=BoWConfig, description="Bag-of-words dictionary and node-feature pooling.")
+
+
+class BoWDescriptor(LocalDescriptor):
+    """A local descriptor whose node features are bag-of-words histograms of its local features.
+
+    A subclass implements only ``_extract`` (raw local features at pixel positions) and
+    gives a ``Config`` with a ``bow: BoWConfig`` field (a :class:`BoWDescriptorConfig`).
+    :meth:`fit` must run before pooling; ``dim`` is ``bow.k``.
+    """
+
+    Config: ClassVar[type[StageConfig]] = BoWDescriptorConfig
+
+    def __init__(self, config: StageConfig | None = None) -> None:
+        super().__init__(config)
+        bow_config = getattr(self.config, "bow", None)
+        if not isinstance(bow_config, BoWConfig):
+            raise TypeError(f"{type(self).__name__}.Config needs a `bow: BoWConfig` field (subclass BoWDescriptorConfig)")
+        self.bow = BagOfWords(bow_config)
+
+    @property
+    def dim(self) -> int:
+        return self.bow.dim
+
+    def fit(self, views: Sequence[View]) -> None:
+        """Fit the dictionary on the local features of ``views`` (at most ``bow.max_train``, evenly per view)."""
+        try:
+            self.bow.fit(self.training_descriptors(views))
+        except InputError as exc:
+            raise InputError(f"descriptor {self.name!r}: {exc}") from None
+
+    def training_descriptors(self, views: Sequence[View]) -> np.ndarray:
+        """The raw local features of ``views`` that :meth:`fit` learns from, ``(N, D)``.
+
+        To bound memory with many views, each view contributes at most
+        ``ceil(max_train / len(views))`` of its features (a seeded random subset).
+        """
+        views = list(views)
+        if not views:
+            return np.zeros((0, 0), dtype=np.float32)
+        cfg = self.bow.config
+        per_view = -(-cfg.max_train // len(views))
+        rng = np.random.default_rng(cfg.seed)
+        chunks = []
+        for view in views:
+            d = self.extract(view).descriptors
+            if len(d) > per_view:
+                d = d[np.sort(rng.choice(len(d), per_view, replace=False))]
+            chunks.append(d)
+        return np.concatenate(chunks, axis=0)
+
+    def _pool(self, features: LocalFeatures, members: Sequence[np.ndarray]) -> np.ndarray:
+        if not self.bow.fitted:
+            raise NotFittedError(
+                f"descriptor {self.name!r} is not fitted: call fit(training views) to learn its bag-of-words dictionary before pooling"
+            )
+        return self.bow.pool(self.bow.encode(features.descriptors), members)
+
+    def state_dict(self) -> dict[str, Any]:
+        """The fitted dictionary (:meth:`BagOfWords.state_dict`)."""
+        return self.bow.state_dict()
+
+    def load_state_dict(self, state: Mapping[str, np.ndarray]) -> None:
+        """Restore a dictionary saved by :meth:`state_dict` instead of fitting."""
+        self.bow.load_state_dict(state)

@@ -1,0 +1,90 @@
+"""A cache of what is costly to recompute for real views: parsed regions and local features.
+
+Keys are a hash of the view's content (its arrays) and of the stage's name and config,
+so a cache folder can be shared by runs and variants: the eight variants of one
+experiment parse and describe each real query image once, and a resumed or repeated
+run reuses everything. Entries are ``.npz`` files written atomically; synthetic views
+are never cached (each is made once).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import io
+from pathlib import Path
+
+import numpy as np
+
+from ssga_core.data import LocalFeatures, Regions, View
+from ssga_core.io import atomic_write_bytes
+from ssga_core.stages import LocalDescriptor, Parser, Stage
+
+
+def view_key(view: View) -> str:
+    h = hashlib.blake2b(digest_size=16)
+    for name in ("rgb", "depth", "semantic", "instance"):
+        a = getattr(view, name)
+        if a is not None:
+            h.update(name.encode())
+            h.update(np.ascontiguousarray(a).tobytes())
+    return h.hexdigest()
+
+
+def stage_key(stage: Stage) -> str:
+    config = stage.config.model_dump_json()
+    return f"{stage.kind}-{stage.name}-{hashlib.blake2b(config.encode(), digest_size=6).hexdigest()}"
+
+
+class FeatureCache:
+    """Regions and local features of real views, in memory and (given a folder) on disk."""
+
+    def __init__(self, root: str | Path | None = None) -> None:
+        self.root = Path(root) if root is not None else None
+        self._memory: dict[tuple[str, str], object] = {}
+        self.hits = 0
+        self.misses = 0
+
+    def _load(self, stage: Stage, view: View) -> tuple[tuple[str, str], dict[str, np.ndarray] | None]:
+        key = (stage_key(stage), view_key(view))
+        if key in self._memory:
+            self.hits += 1
+            return key, self._memory[key]  # type: ignore[return-value]
+        if self.root is not None:
+            path = self.root / key[0] / f"{key[1]}.npz"
+            if path.exists():
+                with np.load(path) as data:
+                    arrays = {k: data[k] for k in data.files}
+                self._memory[key] = arrays
+                self.hits += 1
+                return key, arrays
+        self.misses += 1
+        return key, None
+
+    def _store(self, key: tuple[str, str], arrays: dict[str, np.ndarray]) -> None:
+        self._memory[key] = arrays
+        if self.root is not None:
+            buf = io.BytesIO()
+            np.savez_compressed(buf, **arrays)
+            atomic_write_bytes(self.root / key[0] / f"{key[1]}.npz", buf.getvalue())
+
+    def regions(self, parser: Parser, view: View) -> Regions:
+        if view.synthetic:
+            return parser.parse(view)
+        key, arrays = self._load(parser, view)
+        if arrays is None:
+            regions = parser.parse(view)
+            arrays = {"labels": regions.labels, "boxes": regions.boxes}
+            if regions.categories is not None:
+                arrays["categories"] = regions.categories
+            self._store(key, arrays)
+        return Regions(labels=arrays["labels"], boxes=arrays["boxes"], categories=arrays.get("categories"))
+
+    def local_features(self, descriptor: LocalDescriptor, view: View) -> LocalFeatures:
+        if view.synthetic:
+            return descriptor.extract(view)
+        key, arrays = self._load(descriptor, view)
+        if arrays is None:
+            local = descriptor.extract(view)
+            arrays = {"positions": local.positions, "descriptors": local.descriptors}
+            self._store(key, arrays)
+        return LocalFeatures(positions=arrays["positions"], descriptors=arrays["descriptors"])

@@ -1,0 +1,100 @@
+"""The experiment runner, end to end with stand-in stages."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from ssga_core.config import TrainingConfig, validate_experiment
+from ssga_core.dataset import build_dataset
+from ssga_core.experiment import run_experiment, training_poses
+from ssga_core.protocol import ProtocolConfig
+from ssga_core.testing.stages import WallWorkspaceSource
+
+
+@pytest.fixture(scope="module")
+def dataset(tmp_path_factory):
+    out = tmp_path_factory.mktemp("ds")
+    return build_dataset(WallWorkspaceSource().open(), out, source={"name": "test-wall"}, protocol=ProtocolConfig(cells=2, test_per_class=2, seed=4))
+
+
+def experiment(stand_in_registry, **training):
+    return validate_experiment(
+        {
+            "workspace": {"name": "test-wall"},
+            "stages": {"parser": {"name": "test-stripes"}, "descriptor": {"name": "test-patch-colour"}, "synthesizer": {"name": "test-shift"}},
+            "variants": ["PDS", "PD", "SD"],
+            "fuser": {"name": "rrf"},
+            "training": {"epochs": 3, "hidden": 16, **training},
+        },
+        stand_in_registry,
+    )
+
+
+@pytest.fixture
+def stand_in_registry(ssga_plugin_set):
+    from ssga_core.testing import stages
+
+    ssga_plugin_set.load_entry_points()  # the installed fusers
+    ssga_plugin_set.register(stages, "stand-ins")
+    return ssga_plugin_set.registry()
+
+
+def test_training_poses_cover_every_class_with_jittered_copies(dataset):
+    config = TrainingConfig(synthetic_per_class=3, jitter_m=0.2, jitter_deg=4)
+    poses = training_poses(dataset, config)
+    per_class = np.bincount([place for _, _, place in poses], minlength=dataset.num_classes)
+    reals = {s.place for s in dataset.split("train")}
+    assert all(per_class[p] == (2 if p in reals else 3) for p in range(dataset.num_classes))
+    viewpoint = {s.place: s.pose for s in dataset.split("train") + dataset.split("target")}
+    for real, pose, place in poses:
+        assert real.split == "train" and real.place // 12 == place // 12  # synthesized from its own cell's real view
+        v = viewpoint[place]
+        assert math.hypot(pose.x - v.x, pose.y - v.y) <= 0.2 + 1e-9
+        assert abs(math.remainder(pose.yaw - v.yaw, 2 * math.pi)) <= math.radians(4) + 1e-9
+
+
+def test_runs_fuses_reports_and_resumes(tmp_path, dataset, stand_in_registry, monkeypatch):
+    exp = experiment(stand_in_registry)
+    report, timings = run_experiment(exp, dataset, tmp_path)
+    for name in ("report.md", "results.csv", "results.png", "timings.json"):
+        assert (tmp_path / name).exists()
+    assert set(report.variants) == {"PC-ST (PDS)", "PC-ST (PD)", "PC (SD)"}
+    assert (tmp_path / "variants" / "PC-ST_PDS" / "gcn.pt").exists()
+    scores = np.load(tmp_path / "variants" / "PC-ST_PDS" / "scores.npy")
+    assert scores.shape == (len(dataset.split("test")), dataset.num_classes)
+    np.testing.assert_allclose(scores.sum(axis=1), 1.0, rtol=1e-5)
+    assert {"parse", "describe", "synthesize", "train", "evaluate"} <= set(timings.seconds)
+
+    # A second run trains nothing; a changed training config retrains.
+    def no_training(*args, **kwargs):
+        raise AssertionError("trained again")
+
+    monkeypatch.setattr("ssga_core.experiment.train_gcn", no_training)
+    again, _ = run_experiment(exp, dataset, tmp_path)
+    assert again.markdown() == report.markdown()
+    with pytest.raises(AssertionError, match="trained again"):
+        run_experiment(experiment(stand_in_registry, seed=1), dataset, tmp_path)
+
+
+def test_the_feature_cache_parses_each_real_view_once(tmp_path, dataset, stand_in_registry):
+    from ssga_core import experiment as runner
+
+    calls = []
+    original = runner.FeatureCache.regions
+
+    def counting(self, parser, view):
+        calls.append(view.synthetic)
+        return original(self, parser, view)
+
+    exp = experiment(stand_in_registry)
+    runner.FeatureCache.regions = counting
+    try:
+        _, timings = run_experiment(exp, dataset, tmp_path)
+    finally:
+        runner.FeatureCache.regions = original
+    # PDS and PD both parse every real view; the second finds them cached.
+    cached = list((tmp_path / "cache").glob("parser-test-stripes-*/*.npz"))
+    assert len(cached) == len(dataset.split("test")) + len(dataset.split("train"))
