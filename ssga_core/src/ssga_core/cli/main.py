@@ -45,7 +45,7 @@ def command(parent: typer.Typer = app, **kwargs: Any) -> Callable[[F], F]:
 
 def _register_commands() -> None:
     # Imported for their side effect of attaching commands to `app`.
-    from ssga_core.cli import config, plugins, variants, workspace  # noqa: F401
+    from ssga_core.cli import config, plugins, run, variants, workspace  # noqa: F401
 
 
 _register_commands()

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import hashlib
+import json
 import tomllib
 from pathlib import Path
 from typing import Annotated, Any
@@ -48,7 +50,12 @@ def build_workspace(
     workspace_source = stage.create()
     assert isinstance(workspace_source, WorkspaceSource)
     workspace = workspace_source.open()
-    out = out or Path("runs") / "workspaces" / workspace.name
+    source_record = {"name": source, **stage.config.model_dump(mode="json")}
+    if out is None:
+        # One folder per (source config, protocol): experiments that differ only in their
+        # stages share the rendered workspace.
+        digest = hashlib.blake2b(json.dumps([source_record, protocol.model_dump(mode="json")], sort_keys=True).encode(), digest_size=4)
+        out = Path("runs") / "workspaces" / f"{workspace.name}-{digest.hexdigest()}"
     tasks: dict[str, Any] = {}
 
     def report(phase: str, done: int, total: int) -> None:
@@ -62,7 +69,7 @@ def build_workspace(
     return build_dataset(
         workspace,
         out,
-        source={"name": source, **stage.config.model_dump(mode="json")},
+        source=source_record,
         protocol=protocol,
         height=height,
         overwrite=overwrite,
@@ -79,7 +86,7 @@ def build_cli(
     cells: Annotated[int | None, typer.Option(help="Location cells (classes = cells x 12).")] = None,
     test_per_class: Annotated[int | None, typer.Option(help="Test views per class (the paper: 1500).")] = None,
     cell_size: Annotated[float | None, typer.Option(help="Side of a location cell, metres.")] = None,
-    out: Annotated[Path | None, typer.Option(help="Dataset folder [default: runs/workspaces/<workspace>].")] = None,
+    out: Annotated[Path | None, typer.Option(help="Dataset folder [default: runs/workspaces/<workspace>-<settings hash>].")] = None,
     overwrite: Annotated[bool, typer.Option(help="Replace a dataset built with other settings.")] = False,
 ) -> None:
     """Plan and render a benchmark workspace; an interrupted build resumes where it stopped."""

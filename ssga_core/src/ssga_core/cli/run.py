@@ -1,0 +1,152 @@
+"""``ssga run``, ``ssga demo`` and ``ssga bench``: experiments from configs, with progress bars."""
+
+from __future__ import annotations
+
+import statistics
+import time
+from importlib import resources
+from pathlib import Path
+from typing import Annotated, Any
+
+import typer
+from rich.console import Console
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
+
+from ssga_core.cli.main import app, command
+from ssga_core.cli.workspace import build_workspace
+from ssga_core.config import Experiment, load_experiment, validate_experiment
+from ssga_core.evaluation import LEVELS, METRICS, Report
+from ssga_core.experiment import Timings, run_experiment
+from ssga_core.io import atomic_write_bytes, write_json
+
+
+def packaged_config(name: str) -> Path:
+    """Path of a config shipped with ssga-core (``demo.toml``, ``bench.toml``)."""
+    return Path(str(resources.files("ssga_core") / "configs" / name))
+
+
+def _progress() -> Progress:
+    return Progress(TextColumn("{task.description:<32}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(), TimeRemainingColumn(), transient=True)
+
+
+def run(experiment: Experiment, *, output: Path | None = None, console: Console | None = None) -> tuple[Report, Timings, dict[str, float]]:
+    """Build (or reuse) the experiment's workspace dataset, then train, score and report every variant."""
+    console = console or Console(stderr=True)
+    output = output or experiment.config.output
+    ref = experiment.config.workspace
+    options = {**ref.params, **({"preset": ref.preset} if ref.preset else {})}
+    build_seconds: dict[str, float] = {}
+    with _progress() as progress:
+        start = time.perf_counter()
+        dataset = build_workspace(source=ref.name, options=options, protocol=experiment.config.protocol, out=None, progress=progress)
+        build_seconds["workspace (plan + render)"] = time.perf_counter() - start
+        tasks: dict[str, Any] = {}
+
+        def report(phase: str, done: int, total: int) -> None:
+            if phase not in tasks:
+                tasks[phase] = progress.add_task(phase, total=total)
+            progress.update(tasks[phase], completed=done, total=total)
+
+        def starting(label: str) -> None:
+            for task in tasks.values():
+                progress.remove_task(task)
+            tasks.clear()
+            console.print(f"variant {label}")
+
+        result, timings = run_experiment(experiment, dataset, output, progress=report, variant_progress=starting)
+    return result, timings, build_seconds
+
+
+def _print_result(console: Console, report: Report, output: Path) -> None:
+    console.print(report.markdown())
+    console.print(f"report: {output / 'report.md'}, {output / 'results.csv'}, {output / 'results.png'}")
+
+
+@command(name="run")
+def run_cli(
+    config: Annotated[Path, typer.Argument(help="Experiment config (TOML).")],
+    output: Annotated[Path | None, typer.Option(help="Output folder [default: the config's `output`].")] = None,
+) -> None:
+    """Run an experiment: build its workspace, train and score every variant, fuse, report."""
+    experiment = load_experiment(config)
+    report, _, _ = run(experiment, output=output)
+    _print_result(Console(), report, output or experiment.config.output)
+
+
+@command(name="demo")
+def demo_cli(
+    output: Annotated[Path | None, typer.Option(help="Output folder [default: runs/demo].")] = None,
+) -> None:
+    """The paper's eight variants and their ensemble on a small embedded workspace (a few minutes on a laptop CPU)."""
+    start = time.perf_counter()
+    experiment = load_experiment(packaged_config("demo.toml"))
+    report, _, _ = run(experiment, output=output)
+    console = Console()
+    _print_result(console, report, output or experiment.config.output)
+    console.print(f"demo finished in {time.perf_counter() - start:.0f} s")
+
+
+@command(name="bench")
+def bench_cli(
+    config: Annotated[Path | None, typer.Argument(help="Experiment config [default: the packaged bench.toml].")] = None,
+    seeds: Annotated[str, typer.Option(help="Comma-separated seeds: one workspace, protocol draw and training seed each.")] = "0,1,2",
+    test_per_class: Annotated[int | None, typer.Option(help="Override protocol.test_per_class (smaller for a quick run).")] = None,
+    output: Annotated[Path | None, typer.Option(help="Output folder [default: the config's `output`].")] = None,
+) -> None:
+    """The full protocol on several seeds: Table 1 per seed, the mean over seeds, and where the time goes."""
+    base = load_experiment(config or packaged_config("bench.toml"))
+    out = output or base.config.output
+    console = Console()
+    runs: dict[int, dict[str, Any]] = {}
+    for seed in (int(s) for s in seeds.split(",") if s.strip()):
+        data = base.config.model_dump(mode="json", exclude_none=True)
+        data["workspace"] = {**data["workspace"], "seed": seed} if "seed" in _fields(base, "workspace") else data["workspace"]
+        data["protocol"] = {**data["protocol"], "seed": seed, **({"test_per_class": test_per_class} if test_per_class else {})}
+        data["training"] = {**data["training"], "seed": seed}
+        experiment = validate_experiment(data, source=f"{base.source} (seed {seed})")
+        console.print(f"[bold]seed {seed}[/bold]")
+        start = time.perf_counter()
+        report, timings, build = run(experiment, output=out / f"seed-{seed}")
+        runs[seed] = {"report": report, "seconds": {**build, **timings.seconds}, "wall": time.perf_counter() - start}
+        console.print(report.markdown())
+    summary = bench_summary(runs)
+    atomic_write_bytes(out / "bench.md", summary.encode())
+    write_json(out / "bench.json", {str(s): {"wall_s": r["wall"], "seconds": r["seconds"], "table": r["report"].table} for s, r in runs.items()})
+    console.print(summary)
+
+
+def _fields(experiment: Experiment, kind: str) -> set[str]:
+    stage = experiment.workspace if kind == "workspace" else experiment.fuser
+    return set(stage.cls.Config.model_fields)
+
+
+def bench_summary(runs: dict[int, dict[str, Any]]) -> str:
+    """Markdown: mean (± std) of every row over seeds, and seconds per phase per seed."""
+    seeds = sorted(runs)
+    first: Report = runs[seeds[0]]["report"]
+    rows = [r for r in first.table if not r.startswith("best single")]
+    head = "| | " + " | ".join(f"{m} {lv}" for m in METRICS for lv in LEVELS) + " |"
+    lines = [f"## Mean over seeds {', '.join(map(str, seeds))} (± std)", "", head, "|---|" + "---:|" * (len(METRICS) * len(LEVELS))]
+    for row in rows:
+        cells = []
+        for m in METRICS:
+            for lv in LEVELS:
+                values = [runs[s]["report"].table[row][lv][m] for s in seeds]
+                spread = f" ± {statistics.stdev(values):.1f}" if len(values) > 1 else ""
+                cells.append(f"{statistics.fmean(values):.1f}{spread}")
+        lines.append(f"| {row} | " + " | ".join(cells) + " |")
+    ens = first.ensemble
+    lines += ["", "## Ensemble vs every single variant (MRR, per seed)", ""]
+    for s in seeds:
+        t = runs[s]["report"].table
+        for lv in ("L2", "L3"):
+            best = max(first.variants, key=lambda v: t[v][lv]["mrr"])
+            margin = t[ens][lv]["mrr"] - t[best][lv]["mrr"]
+            lines.append(f"- seed {s} {lv}: ensemble {t[ens][lv]['mrr']:.1f} vs best single {best} {t[best][lv]['mrr']:.1f} ({margin:+.1f})")
+    phases = sorted({p for s in seeds for p in runs[s]["seconds"]})
+    lines += ["", "## Seconds per phase", "", "| phase | " + " | ".join(f"seed {s}" for s in seeds) + " |", "|---|" + "---:|" * len(seeds)]
+    for p in phases:
+        lines.append(f"| {p} | " + " | ".join(f"{runs[s]['seconds'].get(p, 0.0):.1f}" for s in seeds) + " |")
+    lines.append("| **wall** | " + " | ".join(f"{runs[s]['wall']:.1f}" for s in seeds) + " |")
+    return "\n".join(lines) + "\n"
+
