@@ -13,5 +13,9 @@ demo: setup
 test: setup
 	SSGA_STRICT_PLUGINS=1 $(BIN)/python -m pytest -q
 
+# Speed benchmarks (pytest-benchmark); figures are for comparing runs on one machine.
+bench: setup
+	$(BIN)/python -m pytest benchmarks -q -o python_files='bench_*.py' --benchmark-enable --benchmark-columns=median,iqr,ops --benchmark-sort=name
+
 clean:
 	rm -rf $(VENV) .pytest_cache

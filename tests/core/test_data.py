@@ -77,3 +77,18 @@ def test_scene_graph_validates_edges_and_needs_the_whole_image():
         SceneGraph(**ok, edges=np.array([[0, 3]]))
     with pytest.raises(InputError, match="whole-image node"):
         SceneGraph(boxes=np.zeros((0, 4), np.float32), features=np.zeros((0, 5), np.float32), weights=np.ones(0, np.float32), edges=np.zeros((0, 2), int))
+
+
+def test_boxes_from_labels_match_per_label_extremes():
+    from ssga_core.data import boxes_from_labels
+
+    rng = np.random.default_rng(0)
+    labels = rng.integers(-1, 9, size=(37, 53)).astype(np.int32)
+    labels[labels == 4] = -1  # a label with no pixel
+    boxes = boxes_from_labels(labels, 10)
+    for k in range(10):
+        v, u = np.nonzero(labels == k)
+        if len(u):
+            np.testing.assert_array_equal(boxes[k], [u.min(), v.min(), u.max(), v.max()])
+        else:
+            assert np.isnan(boxes[k]).all()

@@ -78,7 +78,7 @@ class BoWConfig(StageConfig):
         description="Distance of a feature to a word: to the word's nearest prototype (NBNN) or to its centroid.",
     )
     prototypes: int = Field(
-        default=16, ge=1, le=1024, description="Member descriptors each word keeps as its prototype set (used by NBNN)."
+        default=64, ge=1, le=1024, description="Member descriptors each word keeps as its prototype set (used by NBNN)."
     )
     top_n: int | None = Field(
         default=None, ge=1, description="A feature votes for its top_n nearest words only; None: for all k."

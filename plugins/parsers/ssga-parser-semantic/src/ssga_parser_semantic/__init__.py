@@ -1,0 +1,1 @@
+"""Ground-truth semantic ids as ssga scene-graph parts: an oracle parser."""

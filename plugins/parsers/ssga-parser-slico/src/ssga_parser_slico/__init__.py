@@ -1,0 +1,1 @@
+"""SLICO superpixels as ssga scene-graph parts."""
