@@ -88,7 +88,7 @@ class BoWConfig(StageConfig):
     )
     norm: Literal["l2", "l1", "none"] = Field(default="l2", description="Normalisation of a node's summed votes.")
     init: Literal["k-means++", "random"] = Field(default="k-means++", description="k-means initialisation.")
-    iterations: int = Field(default=25, ge=1, le=1000, description="Most k-means (Lloyd) iterations; stops early once stable.")
+    iterations: int = Field(default=20, ge=1, le=1000, description="Most k-means (Lloyd) iterations; stops early once stable.")
     max_train: int = Field(
         default=200_000, ge=1, description="Most training descriptors k-means sees; more are subsampled (seeded)."
     )
@@ -122,20 +122,20 @@ def squared_distances(x: np.ndarray, y: np.ndarray) -> np.ndarray:
     return np.maximum(d, 0.0, out=d)
 
 
-def _assign(x: np.ndarray, centroids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Nearest centroid of each row and its squared distance, in blocks of rows."""
+def _assign(x: np.ndarray, x2: np.ndarray, centroids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Nearest centroid of each row and its squared distance (``x2``: the rows' squared norms), in blocks."""
     labels = np.empty(len(x), dtype=np.intp)
     dist = np.empty(len(x), dtype=np.float32)
     c2 = (centroids * centroids).sum(1)
     minus_2c = -2.0 * centroids.T
     step = max(1, _BLOCK // len(centroids))
     for s in range(0, len(x), step):
-        xb = x[s : s + step]
-        d = xb @ minus_2c
+        d = x[s : s + step] @ minus_2c
         d += c2  # + |x|^2 is the same for every centroid: added to the minimum only
         lab = d.argmin(1)
         labels[s : s + step] = lab
-        dist[s : s + step] = np.maximum(np.take_along_axis(d, lab[:, None], 1)[:, 0] + (xb * xb).sum(1), 0.0)
+        dist[s : s + step] = d[np.arange(len(d)), lab] + x2[s : s + step]
+    np.maximum(dist, 0.0, out=dist)
     return labels, dist
 
 
@@ -143,15 +143,17 @@ def _kmeans_pp(x: np.ndarray, k: int, rng: np.random.Generator) -> np.ndarray:
     """k-means++ seeding (Arthur and Vassilvitskii, 2007) on at most ``100 k`` rows of ``x``."""
     if len(x) > 100 * k:
         x = x[rng.choice(len(x), 100 * k, replace=False)]
+    x2 = (x * x).sum(1)
     centres = np.empty((k, x.shape[1]), dtype=np.float32)
     centres[0] = x[rng.integers(len(x))]
-    closest = squared_distances(x, centres[:1])[:, 0].astype(np.float64)
+    closest = np.maximum(x2 - 2.0 * (x @ centres[0]) + x2.dtype.type(centres[0] @ centres[0]), 0.0).astype(np.float64)
     for i in range(1, k):
         total = closest.sum()
         # All remaining rows coincide with a centre: any row will do (a duplicate word).
         j = int(rng.choice(len(x), p=closest / total)) if total > 0 else int(rng.integers(len(x)))
         centres[i] = x[j]
-        np.minimum(closest, squared_distances(x, centres[i : i + 1])[:, 0], out=closest)
+        d = x2 - 2.0 * (x @ centres[i]) + x2[j]
+        np.minimum(closest, np.maximum(d, 0.0), out=closest)
     return centres
 
 
@@ -159,7 +161,7 @@ def kmeans(
     x: np.ndarray,
     k: int,
     *,
-    iterations: int = 25,
+    iterations: int = 20,
     init: Literal["k-means++", "random"] = "k-means++",
     tol: float = 1e-3,
     rng: np.random.Generator | int = 0,
@@ -181,7 +183,8 @@ def kmeans(
         centroids = _kmeans_pp(x, k, rng)
     else:
         centroids = x[rng.choice(len(x), k, replace=False)].copy()
-    labels, dist = _assign(x, centroids)
+    x2 = (x * x).sum(1)
+    labels, dist = _assign(x, x2, centroids)
     for _ in range(iterations):
         means, counts = _cluster_means(x, labels, k)
         filled = counts > 0
@@ -190,7 +193,7 @@ def kmeans(
         if len(empty):
             far = np.argsort(-dist, kind="stable")[: len(empty)]
             centroids[empty] = x[far]
-        new_labels, dist = _assign(x, centroids)
+        new_labels, dist = _assign(x, x2, centroids)
         changed = np.count_nonzero(new_labels != labels)
         labels = new_labels
         if changed <= tol * len(x) and not len(empty):

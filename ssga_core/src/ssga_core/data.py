@@ -235,8 +235,9 @@ class Synthesis:
         target_uv: ``(H, W, 2)`` float32, each source pixel's position in the target
             image; NaN where the source depth is unknown or the point is behind the
             target camera. Positions outside the image are kept (box corners may be).
-        visible: ``(H, W)`` bool, the source pixel lands inside the target image and
-            is the front-most surface there (it won the z-buffer).
+        visible: ``(H, W)`` bool, the source pixel lands inside the target image on
+            the front-most surface there (within the synthesizer's depth tolerance, so
+            several source pixels of one surface may share a target pixel).
     """
 
     view: View

@@ -79,6 +79,10 @@ def check_synthesizer(synthesizer: Synthesizer, view: View | None = None) -> Non
     moved = synthesizer.synthesize(view, _target(view))
     shift = np.nanmedian(moved.target_uv[..., 0] - grid[..., 0])
     assert shift < -1, f"{synthesizer.name}: moving the camera right should move the image content left (median shift {shift:.2f} px)"
+    p = view.pose
+    turned = synthesizer.synthesize(view, Pose(p.x, p.y, p.yaw + 0.2, p.height))
+    shift = np.nanmedian(turned.target_uv[..., 0] - grid[..., 0])
+    assert shift > 1, f"{synthesizer.name}: turning left (yaw + 0.2 rad) should move the image content right (median shift {shift:.2f} px)"
 
 
 def check_fuser(fuser: Fuser, seed: int = 0) -> None:

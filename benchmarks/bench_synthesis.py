@@ -1,0 +1,70 @@
+"""Speed of the depth-warp synthesizer (``make bench``).
+
+One 256 x 256 view (hfov 90) of a corridor with a box in it, so that the depth varies and
+the warps open cracks, disocclusions and strips the source never saw; each call renders
+it at the next of 32 nearby poses (up to 0.5 m away, turned up to 30 degrees), as the
+pipeline does for pseudo-training views. Run alone with
+``pytest benchmarks/bench_synthesis.py -o python_files=bench_*.py --benchmark-enable``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+pytest.importorskip("ssga_synthesizer_depth_warp")
+
+from ssga_core import Camera, Pose, View  # noqa: E402
+from ssga_synthesizer_depth_warp.plugin import DepthWarp, DepthWarpConfig  # noqa: E402
+
+POSES = 32
+
+
+def corridor_view(size: int = 256) -> View:
+    """A 4 m wide corridor (floor 1.5 m below the camera, ceiling 1 m above, end wall 8 m ahead) and a box."""
+    camera = Camera(width=size, height=size, hfov_deg=90.0)
+    grid = camera.pixel_grid()
+    cx, cy = camera.principal_point
+    x = (grid[..., 0] - cx) / camera.focal_px  # ray direction (x, y, 1) in the camera frame
+    y = (grid[..., 1] - cy) / camera.focal_px
+    with np.errstate(divide="ignore"):
+        hits = [np.where(y > 0, 1.5 / y, np.inf), np.where(y < 0, -1.0 / y, np.inf), np.where(x != 0, 2.0 / np.abs(x), np.inf)]
+    depth = np.minimum.reduce([*hits, np.full_like(x, 8.0)])
+    box = (np.abs(x * 2.5 + 0.6) < 0.5) & (y * 2.5 > 0.3)  # a box 2.5 m ahead, left of centre, on the floor
+    depth = np.where(box, np.minimum(depth, 2.5), depth).astype(np.float32)
+    rng = np.random.default_rng(0)
+    texture = rng.integers(0, 128, (size // 8, size // 8, 3), dtype=np.uint8).repeat(8, 0).repeat(8, 1)
+    rgb = texture + (depth[..., None] * 12).astype(np.uint8)
+    return View(rgb=rgb, pose=Pose(0.0, 0.0, 0.0), camera=camera, depth=depth)
+
+
+@pytest.fixture(scope="module")
+def view() -> View:
+    return corridor_view()
+
+
+@pytest.fixture(scope="module")
+def targets() -> list[Pose]:
+    rng = np.random.default_rng(1)
+    offsets = rng.uniform(-0.5, 0.5, (POSES, 2))
+    yaws = rng.uniform(-np.pi / 6, np.pi / 6, POSES)
+    return [Pose(float(dx), float(dy), float(yaw)) for (dx, dy), yaw in zip(offsets, yaws, strict=True)]
+
+
+def _ms_per_view(benchmark) -> None:
+    stats = getattr(benchmark, "stats", None)
+    if stats is not None and getattr(stats, "stats", None) is not None:
+        benchmark.extra_info["ms_per_view"] = round(1000 * stats.stats.median, 2)
+        benchmark.extra_info["views_per_s"] = round(1 / stats.stats.median, 1)
+
+
+@pytest.mark.parametrize("fill", ["none", "nearest", "inpaint"])
+@pytest.mark.parametrize("splat", [1, 2])
+def test_synthesize_one_view(benchmark, view, targets, splat, fill):
+    """One 256 x 256 view per call, one thread."""
+    synthesizer = DepthWarp(DepthWarpConfig(splat=splat, fill_holes=fill))
+    it = iter(targets * 10_000)
+    syn = benchmark(lambda: synthesizer.synthesize(view, next(it)))
+    assert syn.view.rgb.shape == (256, 256, 3)
+    benchmark.extra_info["covered"] = round(float((syn.view.depth > 0).mean()), 3)
+    _ms_per_view(benchmark)
