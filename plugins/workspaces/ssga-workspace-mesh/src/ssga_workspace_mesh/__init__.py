@@ -1,0 +1,30 @@
+"""ssga workspace source rendering views of a textured triangle mesh by ray casting.
+
+The public names are imported on first use, so that loading the plugin module
+(which only registers :class:`~ssga_workspace_mesh.plugin.MeshWorkspaceSource`)
+does not import trimesh, Embree and OpenCV.
+"""
+
+from __future__ import annotations
+
+import importlib
+from typing import Any
+
+_EXPORTS = {
+    "MeshRenderer": "ssga_workspace_mesh.renderer",
+    "load_mesh_scene": "ssga_workspace_mesh.loading",
+    "save_mesh_scene": "ssga_workspace_mesh.loading",
+    "sidecar_path": "ssga_workspace_mesh.loading",
+    "floor_plan_from_mesh": "ssga_workspace_mesh.floorplan",
+    "load_floor_plan": "ssga_workspace_mesh.floorplan",
+    "MeshWorkspace": "ssga_workspace_mesh.plugin",
+    "MeshWorkspaceSource": "ssga_workspace_mesh.plugin",
+}
+
+__all__ = sorted(_EXPORTS)
+
+
+def __getattr__(name: str) -> Any:
+    if name not in _EXPORTS:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    return getattr(importlib.import_module(_EXPORTS[name]), name)

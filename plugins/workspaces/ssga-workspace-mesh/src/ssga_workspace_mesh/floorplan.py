@@ -1,0 +1,231 @@
+"""Floor plans of mesh scenes: read from a JSON file, or derived from the mesh itself.
+
+A derived plan needs no labels, only two assumptions that hold for scans and for
+generated houses alike: the floor is at ``z = 0`` (ssga's convention) and surfaces
+face outwards (normals point out of solid walls and furniture, into the rooms). The
+second one is what tells "inside a thick wall" from "inside a room": from inside a
+solid, a horizontal ray sees the back of a surface.
+
+JSON format (metres, ssga's world frame; ``occluders`` optional)::
+
+    {"free": [[[x, y], [x, y], [x, y], ...], ...],
+     "occluders": [[[x, y], ...], ...]}
+
+Each entry is one polygon's outline. Where a camera may stand is the union of the
+``free`` polygons less the ``occluders``, so furniture inside a room needs no hole.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+import shapely
+import trimesh
+from shapely.geometry.base import BaseGeometry
+
+from ssga_core.errors import InputError
+from ssga_core.workspace import FloorPlan
+from ssga_workspace_mesh.meshdata import RayCaster, flatten_scene
+
+PROBE_DIRECTIONS = 16
+"""Horizontal rays cast from each probe point."""
+
+ENCLOSED_FRACTION = 0.75
+"""A point is inside the building if this share of its horizontal rays hit something:
+an open door or window lets a few escape, standing outside lets about half escape."""
+
+_BATCH = 1 << 15  # probe points per Embree call, to bound memory on large scenes
+
+
+def floor_plan_from_mesh(
+    scene: trimesh.Scene | trimesh.Trimesh,
+    camera_height: float = 1.5,
+    clearance: float = 0.25,
+    *,
+    resolution: float = 0.1,
+    floor_tolerance: float = 0.3,
+    wall_width: float = 0.05,
+    source: str = "mesh",
+) -> FloorPlan:
+    """Derive where a camera may stand, and what blocks sight, from a mesh.
+
+    Args:
+        scene: the scene in ssga's world frame (z up, metres, floor at ``z = 0``).
+        camera_height: height of the camera above the floor; the occluders are the
+            mesh's cross-section there.
+        clearance: how far a camera must stay from any occluder.
+        resolution: spacing of the grid of candidate standing points, metres.
+        floor_tolerance: how far from ``z = 0`` a horizontal surface still counts as floor.
+        wall_width: width given to zero-thickness surfaces (single quads) in the
+            cross-section, so they become polygons.
+        source: what to call the mesh in error messages (its file).
+
+    Returns:
+        ``occluders``: the cross-section at ``camera_height``, solids filled;
+        ``free``: grid cells with floor below, a roof above or walls around, outside
+        any solid, farther than ``clearance`` from every occluder.
+
+    Raises:
+        InputError: no point of the mesh qualifies as free floor.
+    """
+    flat = flatten_scene(scene)
+    caster = RayCaster(flat.vertices, flat.faces)
+    probe = _Probe(caster, flat.normals, camera_height)
+    occluders = _cross_section(flat.vertices, flat.faces, probe, camera_height, wall_width)
+    standable = _standable_area(flat.vertices, probe, resolution, floor_tolerance)
+    free = _polygonal(standable.difference(occluders.buffer(clearance)), min_area=resolution**2)
+    if free.is_empty:
+        raise InputError(
+            f"{source}: found no free floor (a horizontal surface at z = 0 +- {floor_tolerance} m, more than "
+            f"{clearance} m from anything at camera height {camera_height} m); is the floor at z = 0 and up_axis right?"
+        )
+    return FloorPlan(free=free, occluders=occluders)
+
+
+class _Probe:
+    """Ray probes at camera height that classify points of the floor plane."""
+
+    def __init__(self, caster: RayCaster, normals: np.ndarray, height: float) -> None:
+        self.caster, self.normals, self.height = caster, normals, height
+        # Offset from the axes, so no probe grazes an axis-aligned wall.
+        angles = np.arange(PROBE_DIRECTIONS) * (2.0 * math.pi / PROBE_DIRECTIONS) + 0.1
+        self.directions = np.stack([np.cos(angles), np.sin(angles), np.zeros_like(angles)], axis=-1).astype(np.float32)
+
+    def _origins(self, xy: np.ndarray, repeat: int = 1) -> np.ndarray:
+        origins = np.empty((len(xy), 3), dtype=np.float32)
+        origins[:, :2], origins[:, 2] = xy, self.height
+        return np.repeat(origins, repeat, axis=0)
+
+    def horizontal(self, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """For each point: the share of horizontal rays that hit, and the share that hit a surface's back."""
+        k = len(self.directions)
+        directions = np.tile(self.directions, (len(xy), 1))
+        face, _, _ = self.caster.first_hit(self._origins(xy, k), directions)
+        hit = face >= 0
+        back = np.zeros_like(hit)
+        back[hit] = np.einsum("ij,ij->i", self.normals[face[hit]], directions[hit]) > 0
+        return hit.reshape(-1, k).mean(axis=1), back.reshape(-1, k).mean(axis=1)
+
+    def vertical(self, xy: np.ndarray, down: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """For each point, a ray straight down or up: hit?, hit height, |normal z| of the surface hit."""
+        direction = np.array([0.0, 0.0, -1.0 if down else 1.0], dtype=np.float32)
+        face, t, _ = self.caster.first_hit(self._origins(xy), np.broadcast_to(direction, (len(xy), 3)))
+        hit = face >= 0
+        z = np.where(hit, self.height + direction[2] * t, np.nan)
+        flat = np.where(hit, np.abs(self.normals[np.maximum(face, 0), 2]), 0.0)
+        return hit, z, flat
+
+    def inside_solid(self, xy: np.ndarray) -> np.ndarray:
+        _, back = self.horizontal(xy)
+        return back > 0.5
+
+
+def _cross_section(vertices: np.ndarray, faces: np.ndarray, probe: _Probe, height: float, wall_width: float) -> BaseGeometry:
+    """The mesh cut at ``height``: every cut segment widened by ``wall_width``, solids filled."""
+    mesh = trimesh.Trimesh(vertices=vertices, faces=faces, process=False)
+    segments = trimesh.intersections.mesh_plane(mesh, plane_normal=[0.0, 0.0, 1.0], plane_origin=[0.0, 0.0, height])
+    if len(segments) == 0:
+        return shapely.Polygon()
+    segments = np.round(np.asarray(segments)[:, :, :2], 5)  # snap shared endpoints so the cut closes into rings
+    segments = segments[np.any(segments[:, 0] != segments[:, 1], axis=1)]
+    lines = shapely.multilinestrings(shapely.linestrings(segments))
+    outline = lines.buffer(wall_width / 2.0, cap_style="square", join_style="mitre")
+    faces_2d = list(shapely.get_parts(shapely.polygonize(shapely.get_parts(shapely.node(lines)))))
+    if not faces_2d:
+        return outline
+    points = shapely.get_coordinates(shapely.point_on_surface(faces_2d))
+    solid = [f for f, inside in zip(faces_2d, _batched(probe.inside_solid, points), strict=True) if inside]
+    return _polygonal(shapely.union_all([outline, *solid]))
+
+
+def _standable_area(vertices: np.ndarray, probe: _Probe, resolution: float, floor_tolerance: float) -> BaseGeometry:
+    """Grid cells (as polygons) whose centre has floor below and a roof above or walls around, outside any solid."""
+    lo, hi = vertices[:, :2].min(axis=0), vertices[:, :2].max(axis=0)
+    xs = np.arange(lo[0] + resolution / 2.0, hi[0], resolution)
+    ys = np.arange(lo[1] + resolution / 2.0, hi[1], resolution)
+    if len(xs) == 0 or len(ys) == 0:
+        return shapely.Polygon()
+    gx, gy = np.meshgrid(xs, ys)
+    xy = np.stack([gx.ravel(), gy.ravel()], axis=-1).astype(np.float32)
+
+    def classify(points: np.ndarray) -> np.ndarray:
+        down, floor_z, level = probe.vertical(points, down=True)
+        floor = down & (np.abs(floor_z) <= floor_tolerance) & (level > 0.9)
+        up, _, _ = probe.vertical(points, down=False)
+        hits, back = probe.horizontal(points)
+        return floor & (up | (hits >= ENCLOSED_FRACTION)) & (back <= 0.5)
+
+    mask = _batched(classify, xy).reshape(gy.shape)
+    return _cells_to_polygons(mask, xs[0] - resolution / 2.0, ys[0] - resolution / 2.0, resolution)
+
+
+def _batched(fn: Callable[[np.ndarray], np.ndarray], points: np.ndarray) -> np.ndarray:
+    """``fn`` over ``points`` in batches (a grid over a whole house is millions of rays)."""
+    return np.concatenate([fn(points[i : i + _BATCH]) for i in range(0, max(len(points), 1), _BATCH)])
+
+
+def _cells_to_polygons(mask: np.ndarray, x0: float, y0: float, size: float) -> BaseGeometry:
+    """The union of the true cells of a grid mask, built from one box per horizontal run."""
+    padded = np.zeros((mask.shape[0], mask.shape[1] + 2), dtype=np.int8)
+    padded[:, 1:-1] = mask
+    change = np.diff(padded, axis=1)
+    rows, starts = np.nonzero(change == 1)
+    _, ends = np.nonzero(change == -1)  # same row-major order as the starts
+    if len(rows) == 0:
+        return shapely.Polygon()
+    boxes = shapely.box(x0 + starts * size, y0 + rows * size, x0 + ends * size, y0 + (rows + 1) * size)
+    return shapely.union_all(boxes)
+
+
+def _polygonal(geom: BaseGeometry, min_area: float = 0.0) -> BaseGeometry:
+    """Only the polygons of ``geom`` with at least ``min_area``, as one (Multi)Polygon."""
+    parts = [p for p in shapely.get_parts(geom) if p.geom_type == "Polygon" and p.area >= min_area and not p.is_empty]
+    parts += [q for p in shapely.get_parts(geom) if p.geom_type == "MultiPolygon" for q in p.geoms if q.area >= min_area]
+    if not parts:
+        return shapely.Polygon()
+    return parts[0] if len(parts) == 1 else shapely.MultiPolygon(parts)
+
+
+def load_floor_plan(path: str | Path) -> FloorPlan:
+    """Read a floor plan from the JSON format in this module's docstring.
+
+    Raises:
+        InputError: the file is missing, not JSON, or not lists of polygons; one line naming the file.
+    """
+    path = Path(path)
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise InputError(f"{path}: no such floor-plan file") from None
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise InputError(f"{path}: cannot read the floor plan as JSON ({' '.join(str(exc).split())})") from None
+    if not isinstance(data, dict) or "free" not in data:
+        raise InputError(f'{path}: expected {{"free": [polygon, ...], "occluders": [polygon, ...]}}, polygons as [[x, y], ...]')
+    free = shapely.union_all(_polygons(path, "free", data["free"]))
+    occluders = shapely.union_all(_polygons(path, "occluders", data.get("occluders", [])))
+    free = _polygonal(free.difference(occluders))
+    if free.is_empty:
+        raise InputError(f"{path}: the free polygons leave no floor to stand on once the occluders are removed")
+    return FloorPlan(free=free, occluders=_polygonal(occluders))
+
+
+def _polygons(path: Path, key: str, value: object) -> list[shapely.Polygon]:
+    if not isinstance(value, list):
+        raise InputError(f"{path}: {key!r} must be a list of polygons, each a list of [x, y] points")
+    out = []
+    for i, ring in enumerate(value):
+        try:
+            coords = np.asarray(ring, dtype=np.float64)
+        except (TypeError, ValueError):
+            coords = np.empty((0,))
+        if coords.ndim != 2 or coords.shape[1] != 2 or len(coords) < 3 or not np.isfinite(coords).all():
+            raise InputError(f"{path}: {key}[{i}] must be a list of at least 3 [x, y] points in metres")
+        polygon = shapely.Polygon(coords)
+        if not polygon.is_valid or polygon.area == 0:
+            raise InputError(f"{path}: {key}[{i}] is not a simple polygon ({shapely.is_valid_reason(polygon)})")
+        out.append(polygon)
+    return out
