@@ -171,3 +171,33 @@ def test_loading_files(tmp_path, registry):
 def test_format_loc():
     assert format_loc(("variants", 2, "descriptor", "k")) == "variants[2].descriptor.k"
     assert format_loc(()) == "(top level)"
+
+
+def test_relative_paths_in_stage_parameters_follow_the_config_file(tmp_path, registry, ssga_plugin_set):
+    from pathlib import Path
+
+    from ssga_core import StageConfig, hookimpl
+    from ssga_core.testing.stages import WallWorkspaceSource
+
+    class MeshConfig(StageConfig):
+        mesh: Path
+
+    class MeshSource(WallWorkspaceSource):
+        name = "test-mesh"
+        Config = MeshConfig
+
+    class Plugin:
+        @hookimpl
+        def ssga_register_workspaces(self):
+            return [MeshSource]
+
+    ssga_plugin_set.register(Plugin(), "mesh")  # beside the stand-ins the `registry` fixture registered
+    with_mesh = ssga_plugin_set.registry()
+    (tmp_path / "sub").mkdir()
+    path = tmp_path / "sub" / "exp.toml"
+    for given, expected in (("house.glb", tmp_path / "sub" / "house.glb"), ("/abs/house.glb", Path("/abs/house.glb"))):
+        path.write_text(
+            f'variants = ["D"]\n[workspace]\nname = "test-mesh"\nmesh = "{given}"\n'
+            '[stages]\ndescriptor = { name = "test-patch-colour" }\n[fuser]\nname = "test-fuser"\n'
+        )
+        assert load_experiment(path, with_mesh).workspace.config.mesh == expected

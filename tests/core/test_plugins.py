@@ -31,6 +31,10 @@ def plugin_with(*classes, hook="ssga_register_parsers"):
     return Plugin()
 
 
+def test_every_installed_plugin_of_the_repository_loads(ssga_installed_registry):
+    assert not ssga_installed_registry.failures, "; ".join(map(str, ssga_installed_registry.failures))
+
+
 def test_installed_plugins_are_found_through_their_entry_points(ssga_installed_registry):
     grid = ssga_installed_registry.entry("parser", "grid")
     assert (grid.plugin.distribution, grid.plugin.name) == ("ssga-parser-grid", "parser_grid")

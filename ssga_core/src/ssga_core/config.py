@@ -214,18 +214,25 @@ def load_experiment(path: str | Path, registry: Registry | None = None) -> Exper
         raise SsgaError(f"{path}: cannot read the config: {exc}") from None
     except tomllib.TOMLDecodeError as exc:
         raise SsgaError(f"{path}: not valid TOML: {exc}") from None
-    return validate_experiment(data, registry, source=str(path))
+    return validate_experiment(data, registry, source=str(path), base_dir=path.parent)
 
 
-def validate_experiment(data: Mapping[str, Any], registry: Registry | None = None, *, source: str = "<config>") -> Experiment:
-    """Validate a config mapping (see the module docstring)."""
+def validate_experiment(
+    data: Mapping[str, Any], registry: Registry | None = None, *, source: str = "<config>", base_dir: Path | None = None
+) -> Experiment:
+    """Validate a config mapping (see the module docstring).
+
+    Args:
+        base_dir: relative paths in stage parameters (fields typed ``Path``, such as a
+            mesh file) are taken relative to this folder, the config file's.
+    """
     try:
         config = ExperimentConfig.model_validate(data)
     except ValidationError as exc:
         raise ConfigError(source, _pydantic_problems(exc)) from None
     registry = registry or default_registry()
     problems: list[str] = []
-    resolve = _Resolver(registry, problems)
+    resolve = _Resolver(registry, problems, base_dir)
 
     workspace = resolve(config.workspace, "workspace", ("workspace",))
     fuser = resolve(config.fuser, "fuser", ("fuser",))
@@ -277,9 +284,10 @@ def validate_experiment(data: Mapping[str, Any], registry: Registry | None = Non
 class _Resolver:
     """Resolves stage references to classes and validated configs, collecting problems."""
 
-    def __init__(self, registry: Registry, problems: list[str]) -> None:
+    def __init__(self, registry: Registry, problems: list[str], base_dir: Path | None = None) -> None:
         self.registry = registry
         self.problems = problems
+        self.base_dir = base_dir
         self.classes: dict[int, type[Stage]] = {}
         """Class of each reference whose name resolved, by ``id(ref)``."""
 
@@ -305,6 +313,9 @@ class _Resolver:
         except ValidationError as exc:
             self.problems.extend(_pydantic_problems(exc, at))
             return None
+        if self.base_dir is not None:
+            relative = {k: self.base_dir / v for k, v in config if isinstance(v, Path) and not v.is_absolute()}
+            config = config.model_copy(update=relative) if relative else config
         return ResolvedStage(kind, cls, config)
 
 

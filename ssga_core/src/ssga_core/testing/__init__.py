@@ -5,7 +5,7 @@ Fixtures (available in any test once ssga-core is installed):
 * ``ssga_plugin_set``: a fresh plugin manager with ssga's hooks and no plugins loaded;
   register throwaway plugins on it and build a registry with ``.registry()``.
 * ``ssga_installed_registry``: the registry of the plugins installed in this
-  environment, failing the test if any plugin fails to load.
+  environment (failures of other plugins are in its ``failures``).
 * ``fake_entry_points``: make :func:`ssga_core.plugins.get_plugin_manager` see the
   entry points you give it instead of the installed ones.
 
@@ -84,10 +84,12 @@ def ssga_plugin_set() -> PluginSet:
 
 @pytest.fixture
 def ssga_installed_registry() -> Registry:
-    """The registry of the installed plugins; fails the test if any plugin fails to load."""
-    registry = get_plugin_manager().registry()
-    assert not registry.failures, "; ".join(map(str, registry.failures))
-    return registry
+    """The registry of the installed plugins.
+
+    Other installed plugins that fail to load are in ``registry.failures``, not test
+    failures: a plugin's own tests should not break because of someone else's plugin.
+    """
+    return get_plugin_manager().registry()
 
 
 @pytest.fixture
