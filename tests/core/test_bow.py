@@ -239,7 +239,7 @@ def test_a_bow_descriptor_runs_in_every_order():
 def test_a_bow_descriptor_has_dim_k_and_pools_to_it():
     d = _small()
     assert d.dim == 8
-    d.fit([make_view(seed=s) for s in range(2)])
+    d.fit([make_view(seed=s) for s in range(2)], labels=[0, 1])  # the dictionary is unsupervised: labels are ignored
     local = d.extract(make_view(seed=0))
     out = d.pool(local, [np.arange(len(local)), np.array([], dtype=int)])
     assert out.shape == (2, 8)
