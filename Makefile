@@ -8,7 +8,7 @@ setup:
 	@scripts/setup.sh
 
 demo: setup
-	$(BIN)/ssga variants --list
+	$(BIN)/ssga demo
 
 test: setup
 	SSGA_STRICT_PLUGINS=1 $(BIN)/python -m pytest -q

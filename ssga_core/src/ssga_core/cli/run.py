@@ -10,12 +10,13 @@ from typing import Annotated, Any
 
 import typer
 from rich.console import Console
+from rich.table import Table
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
 from ssga_core.cli.main import app, command
 from ssga_core.cli.workspace import build_workspace
 from ssga_core.config import Experiment, load_experiment, validate_experiment
-from ssga_core.evaluation import LEVELS, METRICS, Report
+from ssga_core.evaluation import LEVELS, METRIC_TITLES, METRICS, Report
 from ssga_core.experiment import Timings, run_experiment
 from ssga_core.io import atomic_write_bytes, write_json
 
@@ -57,8 +58,23 @@ def run(experiment: Experiment, *, output: Path | None = None, console: Console 
     return result, timings, build_seconds
 
 
+def result_table(report: Report) -> Table:
+    """Table 1's layout: a row per variant and reference, Top-1, Top-5 and MRR at L1, L2, L3."""
+    table = Table(title=f"{report.title}: test views L1 {report.counts['L1']}, L2 {report.counts['L2']}, L3 {report.counts['L3']}")
+    table.add_column("")
+    for m in METRICS:
+        for lv in LEVELS[:3]:
+            table.add_column(f"{METRIC_TITLES[m].split('[')[0]} {lv}", justify="right")
+    for label, row in report.table.items():
+        style = "bold" if label == report.ensemble else ("dim" if label == "random" else None)
+        table.add_row(label, *(f"{row[lv][m]:.1f}" for m in METRICS for lv in LEVELS[:3]), style=style)
+    return table
+
+
 def _print_result(console: Console, report: Report, output: Path) -> None:
-    console.print(report.markdown())
+    # The table needs ~120 columns; rich assumes 80 when output is not a terminal.
+    console.width = max(console.width, 124)
+    console.print(result_table(report))
     console.print(f"report: {output / 'report.md'}, {output / 'results.csv'}, {output / 'results.png'}")
 
 
@@ -108,7 +124,7 @@ def bench_cli(
         start = time.perf_counter()
         report, timings, build = run(experiment, output=out / f"seed-{seed}")
         runs[seed] = {"report": report, "seconds": {**build, **timings.seconds}, "wall": time.perf_counter() - start}
-        console.print(report.markdown())
+        _print_result(console, report, out / f"seed-{seed}")
     summary = bench_summary(runs)
     atomic_write_bytes(out / "bench.md", summary.encode())
     write_json(out / "bench.json", {str(s): {"wall_s": r["wall"], "seconds": r["seconds"], "table": r["report"].table} for s, r in runs.items()})
