@@ -38,17 +38,18 @@ log="$VENV/setup.log"
 # pip's chatter goes to the log, which is shown only if an install fails.
 pip() { "$py" -m pip install --disable-pip-version-check "$@" >> "$log" 2>&1 || { cat "$log" >&2; echo "setup: pip install failed (log: $log)" >&2; exit 1; }; }
 
-if ! "$py" -c 'import torch' 2>/dev/null; then
+torch_version() { "$py" -c 'import importlib.metadata as m; print(m.version("torch"))' 2>/dev/null; }
+if ! torch_version >/dev/null; then
     echo "setup: installing $TORCH_SPEC"
     pip "$TORCH_SPEC"
 fi
 constraints="$VENV/ssga-constraints.txt"
-"$py" -c 'import torch; print(f"torch=={torch.__version__}")' > "$constraints"
+echo "torch==$(torch_version)" > "$constraints"
 
-echo "setup: installing ssga-core and ${#packages[@]} packages (editable)"
+echo "setup: installing ssga-core and its plugins, ${#packages[@]} packages (editable)"
 pip -c "$constraints" hatchling editables
 editables=()
 for p in "${packages[@]}"; do editables+=(-e "$p"); done
 pip -c "$constraints" --no-build-isolation "${editables[@]}" -r requirements-dev.txt
 touch "$stamp"
-echo "setup: done ($("$py" -c 'import torch; print("torch", torch.__version__)'))"
+echo "setup: done (torch $(torch_version))"
