@@ -98,3 +98,23 @@ def test_the_feature_cache_parses_each_real_view_once(tmp_path, dataset, stand_i
     # PDS and PD both parse every real view; the second finds them cached.
     cached = list((tmp_path / "cache").glob("parser-test-stripes-*/*.npz"))
     assert len(cached) == len(dataset.split("test")) + len(dataset.split("train"))
+
+
+def test_variants_without_s_train_every_class_of_a_cell_on_its_real_graph(tmp_path, dataset, stand_in_registry, monkeypatch):
+    seen = {}
+
+    def recording(graphs, labels, num_classes, config, progress=None):
+        seen[len(seen)] = (list(graphs), list(labels))
+        from ssga_core.gcn import train_gcn
+
+        return train_gcn(graphs, labels, num_classes, config)
+
+    monkeypatch.setattr("ssga_core.experiment.train_gcn", recording)
+    exp = experiment(stand_in_registry)
+    run_experiment(exp, dataset, tmp_path)
+    graphs, labels = seen[1]  # PD, the second variant
+    assert sorted(labels) == list(range(dataset.num_classes))
+    assert len({id(g) for g in graphs}) == len(dataset.split("train"))  # one real graph per cell, repeated
+    exp = experiment(stand_in_registry, real_for_every_class=False)
+    run_experiment(exp, dataset, tmp_path / "real-only")
+    assert sorted(seen[4][1]) == sorted(s.place for s in dataset.split("train"))

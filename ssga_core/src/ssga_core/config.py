@@ -133,6 +133,11 @@ class TrainingConfig(_Strict):
     synthetic_per_class: int = Field(default=4, gt=0, description="Synthetic graphs per class (variants with S): the target and jittered copies.")
     jitter_m: float = Field(default=0.15, ge=0.0, description="Jittered copies move up to this far from the training viewpoint, metres.")
     jitter_deg: float = Field(default=5.0, ge=0.0, description="...and turn up to this much, degrees.")
+    real_for_every_class: bool = Field(
+        default=True,
+        description="Variants without S train each class of a cell on the cell's real graph (the paper: they 'simply use "
+        "available training images as they are'); false trains them on the real classes only.",
+    )
     seed: int = 0
 
 

@@ -6,7 +6,9 @@ For each variant:
    query path: P and D only). A variant with S also synthesizes, from that real view,
    ``synthetic_per_class`` graphs of every class of the cell: the class's training
    viewpoint (the synthesis target, or for the real class the real pose) and jittered
-   copies of it. Variants without S train on the real graphs alone (paper §4.1).
+   copies of it. Variants without S have only the real graphs; each stands for every
+   class of its cell (paper §4.1: they "simply use available training images as they
+   are"), so they tell cells apart but not headings within a cell.
 2. **Fit** the descriptor (a dictionary, a classifier) on the training views, real and
    synthetic, with their classes.
 3. **Train** the variant's GCN, **score** every test view (query path).
@@ -170,9 +172,16 @@ def run_variant(
             fit_views.append(bound.synthesizer.synthesize(views(real, keep=True), pose).view)  # type: ignore[union-attr]
             fit_labels.append(place)
     bound.descriptor.fit(fit_views, fit_labels)
+    orientations = dataset.plan.config.orientations
     for s in reals.values():
-        graphs.append(build_graph(bound, views(s, keep=True), cache=cache))
-        labels.append(s.place)
+        graph = build_graph(bound, views(s, keep=True), cache=cache)
+        # Without S, the real graph is all a cell has: it stands for each of the cell's classes.
+        stands_for = [s.place]
+        if not bound.variant.synthesizes and training.real_for_every_class:
+            first = s.place - s.place % orientations
+            stands_for = list(range(first, first + orientations))
+        graphs.extend([graph] * len(stands_for))
+        labels.extend(stands_for)
     for n, (real, pose, place) in enumerate(synthetic, 1):
         graphs.append(build_graph(bound, views(real, keep=True), pose, cache=cache))
         labels.append(place)
