@@ -11,13 +11,17 @@ from __future__ import annotations
 
 import hashlib
 import io
+from collections.abc import Callable
 from pathlib import Path
+from typing import TypeVar
 
 import numpy as np
 
 from ssga_core.data import LocalFeatures, Regions, View
 from ssga_core.io import atomic_write_bytes
 from ssga_core.stages import LocalDescriptor, Parser, Stage
+
+T = TypeVar("T")
 
 
 def view_key(view: View) -> str:
@@ -67,24 +71,34 @@ class FeatureCache:
             np.savez_compressed(buf, **arrays)
             atomic_write_bytes(self.root / key[0] / f"{key[1]}.npz", buf.getvalue())
 
-    def regions(self, parser: Parser, view: View) -> Regions:
+    def _cached(self, stage: Stage, view: View, compute: Callable[[View], T], pack: Callable[[T], dict[str, np.ndarray]], unpack: Callable[[dict[str, np.ndarray]], T]) -> T:
         if view.synthetic:
-            return parser.parse(view)
-        key, arrays = self._load(parser, view)
+            return compute(view)
+        key, arrays = self._load(stage, view)
         if arrays is None:
-            regions = parser.parse(view)
-            arrays = {"labels": regions.labels, "boxes": regions.boxes}
-            if regions.categories is not None:
-                arrays["categories"] = regions.categories
+            arrays = pack(compute(view))
             self._store(key, arrays)
-        return Regions(labels=arrays["labels"], boxes=arrays["boxes"], categories=arrays.get("categories"))
+        return unpack(arrays)
+
+    def regions(self, parser: Parser, view: View) -> Regions:
+        return self._cached(parser, view, parser.parse, _pack_regions, _unpack_regions)
 
     def local_features(self, descriptor: LocalDescriptor, view: View) -> LocalFeatures:
-        if view.synthetic:
-            return descriptor.extract(view)
-        key, arrays = self._load(descriptor, view)
-        if arrays is None:
-            local = descriptor.extract(view)
-            arrays = {"positions": local.positions, "descriptors": local.descriptors}
-            self._store(key, arrays)
-        return LocalFeatures(positions=arrays["positions"], descriptors=arrays["descriptors"])
+        return self._cached(
+            descriptor,
+            view,
+            descriptor.extract,
+            lambda f: {"positions": f.positions, "descriptors": f.descriptors},
+            lambda a: LocalFeatures(positions=a["positions"], descriptors=a["descriptors"]),
+        )
+
+
+def _pack_regions(regions: Regions) -> dict[str, np.ndarray]:
+    arrays = {"labels": regions.labels, "boxes": regions.boxes}
+    if regions.categories is not None:
+        arrays["categories"] = regions.categories
+    return arrays
+
+
+def _unpack_regions(arrays: dict[str, np.ndarray]) -> Regions:
+    return Regions(labels=arrays["labels"], boxes=arrays["boxes"], categories=arrays.get("categories"))

@@ -11,6 +11,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any, Protocol, runtime_checkable
 
+import numpy as np
 import shapely
 from shapely.geometry.base import BaseGeometry
 
@@ -53,20 +54,23 @@ class FloorPlan:
 
         Each entry is a polygon as GeoJSON writes one: a list of rings, the outline first,
         then its holes, each ring a list of ``[x, y]`` in metres (ssga's world frame).
-        A polygon without holes may also be given as just its outline.
+        A polygon without holes may also be given as just its outline. Where a camera
+        may stand is the union of the ``free`` polygons less the ``occluders``, so
+        furniture inside a room needs no hole; ``occluders`` may be left out.
         """
         return {name: [_rings(p) for p in _polygons(getattr(self, name))] for name in ("free", "occluders")}
 
     @classmethod
     def from_json(cls, data: Any, source: str = "floor plan") -> FloorPlan:
-        try:
-            parts = {name: shapely.union_all([_polygon(p) for p in data[name]]) for name in ("free", "occluders")}
-        except (KeyError, TypeError, ValueError, IndexError) as exc:
-            raise InputError(
-                f"{source}: expected {{\"free\": [polygons], \"occluders\": [polygons]}} with polygons as lists of "
-                f"[x, y] rings ({type(exc).__name__}: {exc})"
-            ) from None
-        return cls(free=parts["free"], occluders=parts["occluders"])
+        """Read the :meth:`to_json` format; errors name ``source`` and the polygon at fault."""
+        if not isinstance(data, dict) or "free" not in data:
+            raise InputError(f'{source}: expected {{"free": [polygon, ...], "occluders": [polygon, ...]}}, polygons as lists of [x, y] rings')
+        free = shapely.union_all(_read_polygons(source, "free", data["free"]))
+        occluders = shapely.union_all(_read_polygons(source, "occluders", data.get("occluders", [])))
+        free = free.difference(occluders)
+        if free.is_empty:
+            raise InputError(f"{source}: the free polygons leave no floor to stand on once the occluders are removed")
+        return cls(free=free, occluders=occluders)
 
 
 def _polygons(geom: BaseGeometry) -> list[shapely.Polygon]:
@@ -77,11 +81,30 @@ def _rings(poly: shapely.Polygon) -> list[list[list[float]]]:
     return [[[round(x, 6), round(y, 6)] for x, y in ring.coords] for ring in (poly.exterior, *poly.interiors)]
 
 
-def _polygon(rings: Any) -> shapely.Polygon:
-    if rings and isinstance(rings[0][0], (int, float)):  # just an outline
-        rings = [rings]
-    poly = shapely.Polygon(rings[0], rings[1:])
-    return poly if poly.is_valid else poly.buffer(0)
+def _read_polygons(source: str, key: str, value: Any) -> list[shapely.Polygon]:
+    if not isinstance(value, list):
+        raise InputError(f"{source}: {key!r} must be a list of polygons, each a list of [x, y] rings")
+    out = []
+    for i, item in enumerate(value):
+        rings = [item] if isinstance(item, list) and item and _is_point(item[0]) else item
+        arrays = []
+        for ring in rings if isinstance(rings, list) else [None]:
+            try:
+                coords = np.asarray(ring, dtype=np.float64)
+            except (TypeError, ValueError):
+                coords = np.empty((0,))
+            if coords.ndim != 2 or coords.shape[1] != 2 or len(coords) < 3 or not np.isfinite(coords).all():
+                raise InputError(f"{source}: {key}[{i}] must be a ring of at least 3 [x, y] points in metres, or a list of such rings")
+            arrays.append(coords)
+        polygon = shapely.Polygon(arrays[0], arrays[1:])
+        if not polygon.is_valid or polygon.area == 0:
+            raise InputError(f"{source}: {key}[{i}] is not a simple polygon ({shapely.is_valid_reason(polygon)})")
+        out.append(polygon)
+    return out
+
+
+def _is_point(value: Any) -> bool:
+    return isinstance(value, (list, tuple)) and len(value) == 2 and all(isinstance(v, (int, float)) for v in value)
 
 
 @runtime_checkable

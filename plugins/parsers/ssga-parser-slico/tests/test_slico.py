@@ -7,7 +7,7 @@ import pytest
 from pydantic import ValidationError
 from ssga_parser_slico.plugin import SlicoConfig, SlicoParser
 
-from ssga_core import ConfigError, Pose, Regions, View
+from ssga_core import ConfigError, Pose, View
 from ssga_core.config import resolve_stage
 from ssga_core.plugins import get_plugin_manager
 from ssga_core.testing import check_parser, check_parser_in_all_orders, make_view

@@ -7,11 +7,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import shapely
 
 from ssga_core import Camera
 from ssga_workspace_procedural import Home, export_glb
-from ssga_workspace_procedural.export import hole_free_parts
 
 
 @pytest.fixture(scope="module")
@@ -57,10 +55,3 @@ def test_the_floor_plan_file_reads_back_as_the_same_plan(home: Home, exported: t
     plan = load_floor_plan(exported[2])
     assert plan.free.symmetric_difference(home.floor_plan.free).area < 1e-4
     assert plan.occluders.symmetric_difference(home.floor_plan.occluders).area < 1e-4
-
-
-def test_hole_free_parts_cover_a_polygon_with_holes() -> None:
-    region = shapely.box(0, 0, 10, 4).difference(shapely.box(2, 1, 3, 2)).difference(shapely.box(6, 1, 8, 3))
-    parts = hole_free_parts(region)
-    assert all(not p.interiors for p in parts)
-    assert shapely.union_all(parts).symmetric_difference(region).area < 1e-9

@@ -13,7 +13,7 @@ from rich.console import Console
 from rich.table import Table
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
-from ssga_core.cli.main import app, command
+from ssga_core.cli.main import command
 from ssga_core.cli.workspace import build_workspace
 from ssga_core.config import Experiment, load_experiment, validate_experiment
 from ssga_core.evaluation import LEVELS, METRIC_TITLES, METRICS, Report

@@ -6,18 +6,11 @@ face outwards (normals point out of solid walls and furniture, into the rooms). 
 second one is what tells "inside a thick wall" from "inside a room": from inside a
 solid, a horizontal ray sees the back of a surface.
 
-JSON format (metres, ssga's world frame; ``occluders`` optional)::
-
-    {"free": [[[x, y], [x, y], [x, y], ...], ...],
-     "occluders": [[[x, y], ...], ...]}
-
-Each entry is one polygon's outline. Where a camera may stand is the union of the
-``free`` polygons less the ``occluders``, so furniture inside a room needs no hole.
+The JSON format is the core's (:meth:`ssga_core.workspace.FloorPlan.to_json`).
 """
 
 from __future__ import annotations
 
-import json
 import math
 from collections.abc import Callable
 from pathlib import Path
@@ -28,6 +21,7 @@ import trimesh
 from shapely.geometry.base import BaseGeometry
 
 from ssga_core.errors import InputError
+from ssga_core.io import read_json
 from ssga_core.workspace import FloorPlan
 from ssga_workspace_mesh.meshdata import RayCaster, flatten_scene
 
@@ -191,41 +185,9 @@ def _polygonal(geom: BaseGeometry, min_area: float = 0.0) -> BaseGeometry:
 
 
 def load_floor_plan(path: str | Path) -> FloorPlan:
-    """Read a floor plan from the JSON format in this module's docstring.
+    """Read a floor plan in the core's JSON format (:meth:`ssga_core.workspace.FloorPlan.to_json`).
 
     Raises:
         InputError: the file is missing, not JSON, or not lists of polygons; one line naming the file.
     """
-    path = Path(path)
-    try:
-        data = json.loads(path.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise InputError(f"{path}: no such floor-plan file") from None
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise InputError(f"{path}: cannot read the floor plan as JSON ({' '.join(str(exc).split())})") from None
-    if not isinstance(data, dict) or "free" not in data:
-        raise InputError(f'{path}: expected {{"free": [polygon, ...], "occluders": [polygon, ...]}}, polygons as [[x, y], ...]')
-    free = shapely.union_all(_polygons(path, "free", data["free"]))
-    occluders = shapely.union_all(_polygons(path, "occluders", data.get("occluders", [])))
-    free = _polygonal(free.difference(occluders))
-    if free.is_empty:
-        raise InputError(f"{path}: the free polygons leave no floor to stand on once the occluders are removed")
-    return FloorPlan(free=free, occluders=_polygonal(occluders))
-
-
-def _polygons(path: Path, key: str, value: object) -> list[shapely.Polygon]:
-    if not isinstance(value, list):
-        raise InputError(f"{path}: {key!r} must be a list of polygons, each a list of [x, y] points")
-    out = []
-    for i, ring in enumerate(value):
-        try:
-            coords = np.asarray(ring, dtype=np.float64)
-        except (TypeError, ValueError):
-            coords = np.empty((0,))
-        if coords.ndim != 2 or coords.shape[1] != 2 or len(coords) < 3 or not np.isfinite(coords).all():
-            raise InputError(f"{path}: {key}[{i}] must be a list of at least 3 [x, y] points in metres")
-        polygon = shapely.Polygon(coords)
-        if not polygon.is_valid or polygon.area == 0:
-            raise InputError(f"{path}: {key}[{i}] is not a simple polygon ({shapely.is_valid_reason(polygon)})")
-        out.append(polygon)
-    return out
+    return FloorPlan.from_json(read_json(path), str(path))

@@ -23,6 +23,7 @@ import numpy as np
 import trimesh
 
 from ssga_core.errors import InputError
+from ssga_core.io import atomic_write_bytes
 from ssga_workspace_mesh.meshdata import geometry_ids
 
 Y_UP_TO_Z_UP = np.array(
@@ -117,7 +118,7 @@ def save_mesh_scene(
     exported = scene.copy()
     if up_axis == "y":
         exported.apply_transform(Z_UP_TO_Y_UP)
-    exported.export(path)
+    atomic_write_bytes(path, exported.export(file_type=path.suffix.lstrip(".").lower()))
     names = {semantic: name for name, semantic in (categories or {}).items()}
     geometries = {}
     for name, (semantic, instance) in geometry_ids(scene, ids).items():
@@ -126,7 +127,7 @@ def save_mesh_scene(
             entry["category"] = names[semantic]
         geometries[name] = entry
     sidecar = sidecar_path(path)
-    sidecar.write_text(json.dumps({"categories": dict(categories or {}), "geometries": geometries}, indent=1), encoding="utf-8")
+    atomic_write_bytes(sidecar, json.dumps({"categories": dict(categories or {}), "geometries": geometries}, indent=1).encode())
     return sidecar
 
 
