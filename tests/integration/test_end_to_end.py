@@ -61,3 +61,24 @@ def test_run_builds_trains_fuses_and_reports(tmp_path, monkeypatch):
     assert result.exit_code == 0, result.output
     assert "Ensemble (Borda)" in result.output
     assert {p: p.stat().st_mtime_ns for p in checkpoints} == checkpoints
+
+
+@pytest.mark.slow
+def test_bench_runs_each_seed_and_summarises(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    path = tmp_path / "bench.toml"
+    config = CONFIG.format(out=tmp_path / "bench").replace(
+        'variants = ["PDS", "PSD", "SPD", "DSP", "PD", "DS", "SD", "D"]', 'variants = ["PD", "DS"]'
+    )
+    path.write_text(config.replace("test_per_class = 2", "test_per_class = 1"))
+    result = CliRunner().invoke(app, ["bench", str(path), "--seeds", "1,2"])
+    assert result.exit_code == 0, result.output
+    summary = (tmp_path / "bench" / "bench.md").read_text()
+    assert "## Mean over seeds 1, 2 (± std)" in summary
+    assert "- seed 2 L3: ensemble" in summary
+    assert "| parse |" in summary and "| **wall** |" in summary
+    data = json.loads((tmp_path / "bench" / "bench.json").read_text())
+    assert set(data) == {"1", "2"}
+    # Each seed is its own home: the protocol and the workspace take the seed.
+    homes = {json.loads(p.read_text())["workspace"] for p in (tmp_path / "runs" / "workspaces").glob("*/dataset.json")}
+    assert homes == {"procedural-1", "procedural-2"}

@@ -2,12 +2,12 @@
 
 from __future__ import annotations
 
-import statistics
 import time
 from importlib import resources
 from pathlib import Path
 from typing import Annotated, Any
 
+import numpy as np
 import typer
 from rich.console import Console
 from rich.table import Table
@@ -147,9 +147,13 @@ def bench_summary(runs: dict[int, dict[str, Any]]) -> str:
         cells = []
         for m in METRICS:
             for lv in LEVELS:
-                values = [runs[s]["report"].table[row][lv][m] for s in seeds]
-                spread = f" ± {statistics.stdev(values):.1f}" if len(values) > 1 else ""
-                cells.append(f"{statistics.fmean(values):.1f}{spread}")
+                values = np.array([runs[s]["report"].table[row][lv][m] for s in seeds])
+                values = values[~np.isnan(values)]  # a seed whose draw left a level empty
+                if not len(values):
+                    cells.append("–")
+                    continue
+                spread = f" ± {values.std(ddof=1):.1f}" if len(values) > 1 else ""
+                cells.append(f"{values.mean():.1f}{spread}")
         lines.append(f"| {row} | " + " | ".join(cells) + " |")
     ens = first.ensemble
     lines += ["", "## Ensemble vs every single variant (MRR, per seed)", ""]
