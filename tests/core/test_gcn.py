@@ -85,3 +85,26 @@ def test_checkpoints_round_trip_and_bad_ones_are_reported(tmp_path):
         load_gcn(tmp_path / "missing.pt")
     with pytest.raises(CheckpointError, match="no such GCN checkpoint"):
         load_gcn(tmp_path / "none.pt")
+
+
+def test_weighted_readout_pools_by_node_weight():
+    import torch
+
+    from ssga_core.gcn import GCN
+
+    g = SceneGraph(
+        boxes=np.zeros((3, 4), np.float32), features=np.array([[1.0], [0.0], [0.0]], np.float32),
+        weights=np.array([1, 0.5, 0.5], np.float32), edges=np.zeros((0, 2), np.int64),
+    )
+    batch = GraphBatch.of([g])
+    for readout, share in (("mean", 1 / 3), ("weighted", 1 / 2)):
+        model = GCN(1, 1, hidden=1, layers=1, dropout=0.0, readout=readout)
+        with torch.no_grad():
+            model.convs[0].weight.fill_(1.0)
+            model.convs[0].bias.zero_()
+            model.classifier.weight.fill_(1.0)
+            model.classifier.bias.zero_()
+        # Without edges each node keeps its own state: only the whole image's is 1.
+        assert model(batch).item() == pytest.approx(share)
+    with pytest.raises(ValueError, match="readout"):
+        GCN(1, 1, readout="max")

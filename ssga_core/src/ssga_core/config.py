@@ -32,7 +32,7 @@ import tomllib
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Annotated, Any
+from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, ValidationError
 
@@ -125,6 +125,9 @@ class TrainingConfig(_Strict):
     hidden: int = Field(default=256, gt=0, description="Hidden width of the GCN.")
     layers: int = Field(default=2, ge=1, description="Graph-convolution layers.")
     dropout: float = Field(default=0.5, ge=0.0, lt=1.0)
+    readout: Literal["mean", "weighted"] = Field(
+        default="mean", description="Pool node states by their mean, or by their node weights (whole image 1, parts 1/K)."
+    )
     epochs: int = Field(default=200, gt=0)
     lr: float = Field(default=1e-3, gt=0.0)
     weight_decay: float = Field(default=5e-4, ge=0.0)

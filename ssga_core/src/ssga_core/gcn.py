@@ -26,11 +26,13 @@ from ssga_core.errors import CheckpointError
 
 @dataclass(frozen=True)
 class GraphBatch:
-    """Padded tensors of a list of graphs: features ``(B, N, F)``, normalised adjacency ``(B, N, N)``, node mask ``(B, N)``."""
+    """Padded tensors of a list of graphs: features ``(B, N, F)``, normalised adjacency ``(B, N, N)``,
+    node mask ``(B, N)`` and node weights ``(B, N)`` (0 on padding)."""
 
     x: torch.Tensor
     adj: torch.Tensor
     mask: torch.Tensor
+    weights: torch.Tensor
 
     @classmethod
     def of(cls, graphs: Sequence[SceneGraph]) -> GraphBatch:
@@ -41,6 +43,7 @@ class GraphBatch:
         x = np.zeros((len(graphs), n, f), np.float32)
         adj = np.zeros((len(graphs), n, n), np.float32)
         mask = np.zeros((len(graphs), n), np.float32)
+        weights = np.zeros((len(graphs), n), np.float32)
         for b, g in enumerate(graphs):
             k = g.num_nodes
             x[b, :k] = g.features * g.weights[:, None]
@@ -50,21 +53,30 @@ class GraphBatch:
             d = 1.0 / np.sqrt(a.sum(axis=1))
             adj[b, :k, :k] = a * d[:, None] * d[None, :]
             mask[b, :k] = 1.0
-        return cls(torch.from_numpy(x), torch.from_numpy(adj), torch.from_numpy(mask))
+            weights[b, :k] = g.weights
+        return cls(torch.from_numpy(x), torch.from_numpy(adj), torch.from_numpy(mask), torch.from_numpy(weights))
 
     def __len__(self) -> int:
         return self.x.shape[0]
 
     def take(self, index: torch.Tensor) -> GraphBatch:
-        return GraphBatch(self.x[index], self.adj[index], self.mask[index])
+        return GraphBatch(self.x[index], self.adj[index], self.mask[index], self.weights[index])
 
 
 class GCN(nn.Module):
-    """Graph classifier: ``layers`` graph convolutions, masked mean readout, linear output."""
+    """Graph classifier: ``layers`` graph convolutions, a readout over the nodes, linear output.
 
-    def __init__(self, in_dim: int, num_classes: int, hidden: int = 256, layers: int = 2, dropout: float = 0.5) -> None:
+    Readout ``"mean"`` averages the nodes; ``"weighted"`` averages them by node weight,
+    so the whole image counts as much as all parts together after the convolutions too
+    (the symmetric normalisation divides the whole-image node, joined to every part, by
+    its degree).
+    """
+
+    def __init__(self, in_dim: int, num_classes: int, hidden: int = 256, layers: int = 2, dropout: float = 0.5, readout: str = "mean") -> None:
         super().__init__()
-        self.hparams = {"in_dim": in_dim, "num_classes": num_classes, "hidden": hidden, "layers": layers, "dropout": dropout}
+        if readout not in ("mean", "weighted"):
+            raise ValueError(f"GCN readout must be 'mean' or 'weighted', got {readout!r}")
+        self.hparams = {"in_dim": in_dim, "num_classes": num_classes, "hidden": hidden, "layers": layers, "dropout": dropout, "readout": readout}
         self.convs = nn.ModuleList(nn.Linear(in_dim if i == 0 else hidden, hidden) for i in range(layers))
         self.dropout = nn.Dropout(dropout)
         self.classifier = nn.Linear(hidden, num_classes)
@@ -73,8 +85,8 @@ class GCN(nn.Module):
         h = batch.x
         for conv in self.convs:
             h = torch.relu(batch.adj @ conv(self.dropout(h)))
-        m = batch.mask.unsqueeze(-1)
-        pooled = (h * m).sum(dim=1) / m.sum(dim=1).clamp(min=1.0)
+        m = (batch.weights if self.hparams["readout"] == "weighted" else batch.mask).unsqueeze(-1)
+        pooled = (h * m).sum(dim=1) / m.sum(dim=1).clamp(min=1e-6)
         return self.classifier(self.dropout(pooled))
 
     @torch.no_grad()
@@ -122,7 +134,7 @@ def train_gcn(
     train = np.setdiff1d(np.arange(len(graphs)), val)
     batch = GraphBatch.of(graphs)
     y = torch.from_numpy(labels)
-    model = GCN(batch.x.shape[-1], num_classes, config.hidden, config.layers, config.dropout)
+    model = GCN(batch.x.shape[-1], num_classes, config.hidden, config.layers, config.dropout, config.readout)
     optimiser = torch.optim.Adam(model.parameters(), lr=config.lr, weight_decay=config.weight_decay)
     loss_fn = nn.CrossEntropyLoss()
     train_t, val_t = torch.from_numpy(train), torch.from_numpy(val)
