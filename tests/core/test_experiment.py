@@ -79,25 +79,16 @@ def test_runs_fuses_reports_and_resumes(tmp_path, dataset, stand_in_registry, mo
         run_experiment(experiment(stand_in_registry, seed=1), dataset, tmp_path)
 
 
-def test_the_feature_cache_parses_each_real_view_once(tmp_path, dataset, stand_in_registry):
-    from ssga_core import experiment as runner
+def test_the_feature_cache_parses_each_real_view_once(tmp_path, dataset, stand_in_registry, monkeypatch):
+    from ssga_core.testing.stages import StripesParser
 
-    calls = []
-    original = runner.FeatureCache.regions
-
-    def counting(self, parser, view):
-        calls.append(view.synthetic)
-        return original(self, parser, view)
-
-    exp = experiment(stand_in_registry)
-    runner.FeatureCache.regions = counting
-    try:
-        _, timings = run_experiment(exp, dataset, tmp_path)
-    finally:
-        runner.FeatureCache.regions = original
-    # PDS and PD both parse every real view; the second finds them cached.
-    cached = list((tmp_path / "cache").glob("parser-test-stripes-*/*.npz"))
-    assert len(cached) == len(dataset.split("test")) + len(dataset.split("train"))
+    parsed = []
+    original = StripesParser._parse
+    monkeypatch.setattr(StripesParser, "_parse", lambda self, view: parsed.append(view.synthetic) or original(self, view))
+    run_experiment(experiment(stand_in_registry), dataset, tmp_path)
+    # PDS and PD both parse every real view (tests and the training views); the cache makes it once each.
+    assert len(parsed) == len(dataset.split("test")) + len(dataset.split("train"))
+    assert not any(parsed)  # neither parses a synthetic view
 
 
 def test_variants_without_s_train_every_class_of_a_cell_on_its_real_graph(tmp_path, dataset, stand_in_registry, monkeypatch):

@@ -5,7 +5,7 @@ from __future__ import annotations
 import time
 from importlib import resources
 from pathlib import Path
-from typing import Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any
 
 import numpy as np
 import typer
@@ -17,8 +17,10 @@ from ssga_core.cli.main import command
 from ssga_core.cli.workspace import build_workspace
 from ssga_core.config import Experiment, load_experiment, validate_experiment
 from ssga_core.evaluation import LEVELS, METRIC_TITLES, METRICS, Report
-from ssga_core.experiment import Timings, run_experiment
 from ssga_core.io import atomic_write_bytes, write_json
+
+if TYPE_CHECKING:
+    from ssga_core.experiment import Timings
 
 
 def packaged_config(name: str) -> Path:
@@ -32,6 +34,10 @@ def _progress() -> Progress:
 
 def run(experiment: Experiment, *, output: Path | None = None, console: Console | None = None) -> tuple[Report, Timings, dict[str, float]]:
     """Build (or reuse) the experiment's workspace dataset, then train, score and report every variant."""
+    # Imported here: torch (through the GCN) takes a second to import, which listing
+    # variants or plugins should not pay.
+    from ssga_core.experiment import run_experiment
+
     console = console or Console(stderr=True)
     output = output or experiment.config.output
     ref = experiment.config.workspace
