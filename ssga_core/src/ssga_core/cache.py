@@ -45,13 +45,10 @@ class FeatureCache:
     def __init__(self, root: str | Path | None = None) -> None:
         self.root = Path(root) if root is not None else None
         self._memory: dict[tuple[str, str], object] = {}
-        self.hits = 0
-        self.misses = 0
 
     def _load(self, stage: Stage, view: View) -> tuple[tuple[str, str], dict[str, np.ndarray] | None]:
         key = (stage_key(stage), view_key(view))
         if key in self._memory:
-            self.hits += 1
             return key, self._memory[key]  # type: ignore[return-value]
         if self.root is not None:
             path = self.root / key[0] / f"{key[1]}.npz"
@@ -59,9 +56,7 @@ class FeatureCache:
                 with np.load(path) as data:
                     arrays = {k: data[k] for k in data.files}
                 self._memory[key] = arrays
-                self.hits += 1
                 return key, arrays
-        self.misses += 1
         return key, None
 
     def _store(self, key: tuple[str, str], arrays: dict[str, np.ndarray]) -> None:

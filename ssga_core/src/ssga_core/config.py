@@ -60,7 +60,13 @@ class StageRef(BaseModel):
 
     @property
     def params(self) -> dict[str, Any]:
+        """The parameters beside ``name`` and ``preset``."""
         return dict(self.model_extra or {})
+
+    @property
+    def options(self) -> dict[str, Any]:
+        """Everything but ``name``: the parameters, and ``preset`` if one is named."""
+        return {**self.params, **({"preset": self.preset} if self.preset else {})}
 
 
 # One subclass per kind, so the JSON schema can list each kind's installed plugins.

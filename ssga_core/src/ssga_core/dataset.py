@@ -23,7 +23,7 @@ written (each file appears atomically), and the next build renders only what is 
 from __future__ import annotations
 
 import shutil
-from collections.abc import Callable, Iterable
+from collections.abc import Callable
 from dataclasses import asdict
 from pathlib import Path
 from typing import Any
@@ -222,6 +222,3 @@ class Dataset:
     @property
     def floor_plan(self) -> FloorPlan:
         return FloorPlan.from_json(read_json(self.root / "floorplan.json"), str(self.root / "floorplan.json"))
-
-    def views(self, samples: Iterable[Sample]) -> list[View]:
-        return [self.view(s) for s in samples]

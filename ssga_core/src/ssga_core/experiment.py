@@ -102,10 +102,10 @@ def training_poses(dataset: Dataset, config: TrainingConfig) -> list[tuple[Sampl
     out = []
     for s in sorted(dataset.split("train") + dataset.split("target"), key=lambda s: s.place):
         real = real_of_cell[s.cell]
-        # The real class already has its real graph: n - 1 jittered syntheses beside it.
+        # A target class gets its target and n - 1 jittered copies; the real class has its
+        # real graph already, and gets n - 1 jittered syntheses beside it.
         first = [] if s.split == "train" else [s.pose]
-        extra = config.synthetic_per_class - len(first) - (1 if s.split == "train" else 0)
-        poses = first + [jittered(s.pose, rng, config.jitter_m, config.jitter_deg) for _ in range(max(extra, 0))]
+        poses = first + [jittered(s.pose, rng, config.jitter_m, config.jitter_deg) for _ in range(config.synthetic_per_class - 1)]
         out.extend((real, p, s.place) for p in poses)
     return out
 

@@ -18,7 +18,7 @@ from ssga_core.protocol import Sample
 LEVEL_COLOURS = {1: (46, 160, 67), 2: (230, 150, 20), 3: (210, 50, 50)}  # RGB: green, orange, red
 
 
-def class_colour(place: int, num_classes: int) -> tuple[int, int, int]:
+def class_colour(place: int) -> tuple[int, int, int]:
     # Spread hues by a golden-ratio step so neighbouring classes differ.
     h = (place * 0.618034) % 1.0
     r, g, b = colorsys.hsv_to_rgb(h, 0.75, 0.9)
@@ -62,7 +62,6 @@ def birdseye(dataset: Dataset, colour_by: str = "class", px_per_m: float = 60.0,
         cv2.putText(img, str(rank), (int(a[0]) + 4, int(a[1]) + 16), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (40, 90, 200), 1, cv2.LINE_AA)
 
     hfov = math.radians(dataset.camera.hfov_deg)
-    n = dataset.num_classes
 
     def frustum(s: Sample, scale: float) -> np.ndarray:
         p = np.array([s.pose.x, s.pose.y])
@@ -70,13 +69,13 @@ def birdseye(dataset: Dataset, colour_by: str = "class", px_per_m: float = 60.0,
         return px([p, *ends])
 
     for s in dataset.split("test"):
-        colour = LEVEL_COLOURS[s.level] if colour_by == "level" else class_colour(s.place, n)
+        colour = LEVEL_COLOURS[s.level] if colour_by == "level" else class_colour(s.place)
         cv2.polylines(img, [frustum(s, 0.6)], True, colour, 1, cv2.LINE_AA)
     for s in dataset.split("target"):
-        cv2.polylines(img, [frustum(s, 1.0)], True, class_colour(s.place, n), 2, cv2.LINE_AA)
+        cv2.polylines(img, [frustum(s, 1.0)], True, class_colour(s.place), 2, cv2.LINE_AA)
     for s in dataset.split("train"):
         tri = frustum(s, 1.0)
-        cv2.fillPoly(img, [tri], class_colour(s.place, n), cv2.LINE_AA)
+        cv2.fillPoly(img, [tri], class_colour(s.place), cv2.LINE_AA)
         cv2.polylines(img, [tri], True, (0, 0, 0), 2, cv2.LINE_AA)
     return img
 

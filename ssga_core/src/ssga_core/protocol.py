@@ -156,7 +156,6 @@ class Protocol:
     """The protocol for one floor plan and camera (see the module docstring)."""
 
     def __init__(self, floor_plan: FloorPlan, camera: Camera, config: ProtocolConfig | None = None) -> None:
-        self.plan_geometry = floor_plan
         self.camera = camera
         self.config = config or ProtocolConfig()
         self.grid = Grid.covering(floor_plan.bounds, self.config.cell_size)

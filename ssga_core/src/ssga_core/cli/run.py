@@ -41,7 +41,7 @@ def run(experiment: Experiment, *, output: Path | None = None, console: Console 
     console = console or Console(stderr=True)
     output = output or experiment.config.output
     ref = experiment.config.workspace
-    options = {**ref.params, **({"preset": ref.preset} if ref.preset else {})}
+    options = ref.options
     build_seconds: dict[str, float] = {}
     with _progress() as progress:
         start = time.perf_counter()
@@ -122,7 +122,8 @@ def bench_cli(
     runs: dict[int, dict[str, Any]] = {}
     for seed in (int(s) for s in seeds.split(",") if s.strip()):
         data = base.config.model_dump(mode="json", exclude_none=True)
-        data["workspace"] = {**data["workspace"], "seed": seed} if "seed" in _fields(base, "workspace") else data["workspace"]
+        if "seed" in base.workspace.cls.Config.model_fields:
+            data["workspace"] = {**data["workspace"], "seed": seed}
         data["protocol"] = {**data["protocol"], "seed": seed, **({"test_per_class": test_per_class} if test_per_class else {})}
         data["training"] = {**data["training"], "seed": seed}
         experiment = validate_experiment(data, source=f"{base.source} (seed {seed})")
@@ -135,11 +136,6 @@ def bench_cli(
     atomic_write_bytes(out / "bench.md", summary.encode())
     write_json(out / "bench.json", {str(s): {"wall_s": r["wall"], "seconds": r["seconds"], "table": r["report"].table} for s, r in runs.items()})
     console.print(summary)
-
-
-def _fields(experiment: Experiment, kind: str) -> set[str]:
-    stage = experiment.workspace if kind == "workspace" else experiment.fuser
-    return set(stage.cls.Config.model_fields)
 
 
 def bench_summary(runs: dict[int, dict[str, Any]]) -> str:

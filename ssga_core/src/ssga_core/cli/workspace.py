@@ -95,7 +95,7 @@ def build_cli(
     if config is not None:
         experiment = load_experiment(config)
         ref = experiment.config.workspace
-        source, options = ref.name, {**ref.params, **({"preset": ref.preset} if ref.preset else {}), **options}
+        source, options = ref.name, {**ref.options, **options}
         protocol = experiment.config.protocol
     overrides = {k: v for k, v in {"seed": seed, "cells": cells, "test_per_class": test_per_class, "cell_size": cell_size}.items() if v is not None}
     protocol = ProtocolConfig.model_validate({**protocol.model_dump(), **overrides})
