@@ -11,7 +11,7 @@ demo: setup
 	$(BIN)/ssga demo
 
 test: setup
-	$(BIN)/ruff check --quiet --select F,E9 ssga_core plugins examples tests benchmarks
+	$(BIN)/ruff check --quiet --select F,E9 ssga_core ssga_bench plugins examples tests benchmarks
 	SSGA_STRICT_PLUGINS=1 $(BIN)/python -m pytest -q
 
 # Speed benchmarks (pytest-benchmark); figures are for comparing runs on one machine.

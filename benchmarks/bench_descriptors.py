@@ -18,7 +18,7 @@ pytest.importorskip("ssga_descriptor_dense_sift")
 
 from ssga_descriptor_dense_sift.plugin import DenseSift, DenseSiftConfig  # noqa: E402
 
-from ssga_core.bow import BagOfWords, BoWConfig  # noqa: E402
+from ssga_bench import BagOfWords, BoWConfig  # noqa: E402
 from ssga_core.testing import make_view  # noqa: E402
 
 TRAIN_VIEWS = 348  # x 144 = 50,112 descriptors

@@ -17,7 +17,7 @@ VENV=${VENV:-.venv}
 PYTHON=${PYTHON:-python3}
 TORCH_SPEC=${TORCH_SPEC:-torch==2.13.0}
 
-packages=(ssga_core plugins/*/*/ examples/*/)
+packages=(ssga_core ssga_bench plugins/*/*/ examples/*/)
 stamp="$VENV/.ssga-installed"
 
 # Re-install only when a package's metadata (dependencies, entry points) or this script changed.

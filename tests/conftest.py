@@ -6,10 +6,12 @@ import pytest
 
 from ssga_core.plugins import Registry
 from ssga_core.testing import stages as stand_in_stages
+from ssga_bench import testing as stand_in_workspaces
 
 
 @pytest.fixture
 def stand_in_registry(ssga_plugin_set) -> Registry:
     """A registry of the stand-in stages and the installed fusers' kind of plugin: nothing installed."""
     ssga_plugin_set.register(stand_in_stages, "stand-ins")
+    ssga_plugin_set.register(stand_in_workspaces, "stand-in-workspaces")
     return ssga_plugin_set.registry()

@@ -7,7 +7,9 @@ import json
 import pytest
 from typer.testing import CliRunner
 
-from ssga_core.cli.main import app
+from ssga_core.cli import app_with_plugin_commands
+
+app = app_with_plugin_commands()
 
 runner = CliRunner()
 
@@ -27,12 +29,14 @@ name = "rrf"
 @pytest.fixture
 def stand_ins(monkeypatch, ssga_plugin_set):
     """Make the CLI see the stand-in stages plus the installed plugins."""
+    from ssga_bench import testing as stand_in_workspaces
     from ssga_core.testing import stages as stand_in_stages
 
     ssga_plugin_set.load_entry_points()
     ssga_plugin_set.register(stand_in_stages, "stand-ins")
+    ssga_plugin_set.register(stand_in_workspaces, "stand-in-workspaces")
     registry = ssga_plugin_set.registry()
-    monkeypatch.setattr("ssga_core.config.default_registry", lambda: registry)
+    monkeypatch.setattr("ssga_core.plugins.default_registry", lambda: registry)
     return registry
 
 

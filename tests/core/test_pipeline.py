@@ -141,7 +141,7 @@ def test_semantic_ids_are_warped_into_synthetic_views(view):
     from ssga_core.pipeline import _State
 
     state = _State(view)
-    state.synthesize(ShiftWarp(), target_right(view))
+    state.synthesize(ShiftWarp().synthesize(view, target_right(view)))
     assert state.view.synthetic and state.view.semantic is not None
     # Content moved 12.8 px left: synthetic column 100 shows real column 113 (rounding 112.8).
     np.testing.assert_array_equal(state.view.semantic[:, 100], view.semantic[:, 113])

@@ -13,7 +13,9 @@ import json
 import pytest
 from typer.testing import CliRunner
 
-from ssga_core.cli.main import app
+from ssga_core.cli import app_with_plugin_commands
+
+app = app_with_plugin_commands()
 
 CONFIG = """
 output = "{out}"

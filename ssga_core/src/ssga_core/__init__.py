@@ -1,8 +1,13 @@
-"""ssga: synthetic scene-graph augmentation for cross-view image localization.
+"""ssga: synthetic scene-graph augmentation for cross-view image localization; the minimal core.
 
-Plugins import what they need from here and never import pluggy themselves::
+This module is the core's public API: plugins import what they need from here (and
+their tests from :mod:`ssga_core.testing`), never from the submodules, and never
+import pluggy themselves::
 
     from ssga_core import Parser, Regions, StageConfig, View, hookimpl
+
+Importing it loads numpy, pydantic and pluggy, and none of torch, OpenCV, shapely or
+matplotlib.
 """
 
 from __future__ import annotations
@@ -11,9 +16,12 @@ from importlib.metadata import PackageNotFoundError, version
 
 import pluggy
 
-from ssga_core.data import Data, LocalFeatures, Regions, SceneGraph, Synthesis, View
+from ssga_core.config import resolve_stage
+from ssga_core.data import Data, LocalFeatures, Regions, SceneGraph, Synthesis, View, boxes_from_labels
 from ssga_core.errors import CheckpointError, ConfigError, InputError, PluginError, SsgaError, VariantSyntaxError
 from ssga_core.geometry import Camera, Pose
+from ssga_core.kinds import KINDS, StageKind
+from ssga_core.ranking import ranks, reciprocal_ranks
 from ssga_core.stages import (
     Descriptor,
     Fuser,
@@ -43,6 +51,7 @@ __all__ = [
     "Descriptor",
     "Fuser",
     "InputError",
+    "KINDS",
     "LocalDescriptor",
     "LocalFeatures",
     "Parser",
@@ -54,12 +63,17 @@ __all__ = [
     "SsgaError",
     "Stage",
     "StageConfig",
+    "StageKind",
     "Synthesis",
     "Synthesizer",
     "Variant",
     "VariantSyntaxError",
     "View",
     "WorkspaceSource",
+    "boxes_from_labels",
     "hookimpl",
     "parse_variant",
+    "ranks",
+    "reciprocal_ranks",
+    "resolve_stage",
 ]

@@ -1,16 +1,14 @@
-"""Experiment configs: one TOML file, validated in two steps, every problem reported at once.
+"""Stage references and variant bindings in config files: the one path from a config to stage instances.
 
-Step 1 checks the file's shape against :class:`ExperimentConfig`. Step 2 resolves each
-``{ name = ... }`` stage reference in the plugin registry, validates its parameters
-with that plugin's own ``Config``, parses each variant string and checks each bound
-variant against its plugins and the workspace's views. Problems come back as
-``path: message`` lines, e.g. ``variants[2].descriptor.k: Input should be greater
-than 0``.
+A stage is picked by name with its parameters beside it (``parser = { name = "slico",
+n_segments = 64 }``). :class:`Resolver` turns such a reference into a
+:class:`ResolvedStage`: the registered class and its validated config, with relative
+paths in the parameters taken from the config file's folder. Every command goes
+through it, once; whatever runs afterwards uses the resolved stage and never reads
+the raw options again.
 
-A minimal config::
-
-    [workspace]
-    name = "procedural"
+The part of a config this module reads is the variants and the stages bound to
+them::
 
     [stages]                              # bound to every variant unless it overrides
     parser = { name = "slico" }
@@ -24,6 +22,11 @@ or, to bind one variant differently::
     [[variants]]
     variant = "SPD2"
     parser = { name = "slico", n_segments = 50 }
+
+Everything else in an experiment config (the workspace, protocol, training, fusion)
+belongs to the layer that runs experiments, which validates the whole file with the
+same helpers. Problems come back all at once, as ``path: message`` lines, e.g.
+``variants[2].descriptor.k: Input should be greater than 0``.
 """
 
 from __future__ import annotations
@@ -32,18 +35,17 @@ import tomllib
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Annotated, Any, Literal
+from typing import Annotated, Any
 
-from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, ValidationError
+from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, ValidationError, create_model
 
-from ssga_core.errors import ConfigError, SsgaError
+from ssga_core.data import Data
+from ssga_core.errors import ConfigError, InputError, SsgaError
+from ssga_core.kinds import KINDS, PIPELINE_KIND_NAMES, kind_named
 from ssga_core.pipeline import BoundVariant, table_label
-from ssga_core.plugins import Registry, default_registry
-from ssga_core.protocol import ProtocolConfig
+from ssga_core.plugins import Registry
 from ssga_core.stages import Stage, StageConfig
 from ssga_core.variants import Variant, check_binding, parse_variant
-
-STAGE_FIELDS = ("parser", "descriptor", "synthesizer")
 
 
 class StageRef(BaseModel):
@@ -63,103 +65,50 @@ class StageRef(BaseModel):
         """The parameters beside ``name`` and ``preset``."""
         return dict(self.model_extra or {})
 
-    @property
-    def options(self) -> dict[str, Any]:
-        """Everything but ``name``: the parameters, and ``preset`` if one is named."""
-        return {**self.params, **({"preset": self.preset} if self.preset else {})}
-
 
 # One subclass per kind, so the JSON schema can list each kind's installed plugins.
-class ParserRef(StageRef):
-    """A scene parser (stage P)."""
-
-
-class DescriptorRef(StageRef):
-    """A scene descriptor (stage D)."""
-
-
-class SynthesizerRef(StageRef):
-    """A view synthesizer (stage S)."""
-
-
-class FuserRef(StageRef):
-    """A late-fusion rule."""
-
-
-class WorkspaceRef(StageRef):
-    """A workspace source."""
-
-
 REF_TYPES: dict[str, type[StageRef]] = {
-    "parser": ParserRef,
-    "descriptor": DescriptorRef,
-    "synthesizer": SynthesizerRef,
-    "fuser": FuserRef,
-    "workspace": WorkspaceRef,
+    k.name: type(f"{k.name.title()}Ref", (StageRef,), {"__doc__": f"A {k.name} (implementations {k.verb}), picked by name."}) for k in KINDS
 }
 
 
-class _Strict(BaseModel):
+class Strict(BaseModel):
+    """Base of config sections: unknown keys are errors, instances are immutable."""
+
     model_config = ConfigDict(extra="forbid", frozen=True)
 
 
-class StageDefaults(_Strict):
-    """Stages bound to every variant that does not name its own."""
+def _stage_fields() -> dict[str, Any]:
+    return {name: (REF_TYPES[name] | None, None) for name in PIPELINE_KIND_NAMES}
 
-    parser: ParserRef | None = None
-    descriptor: DescriptorRef | None = None
-    synthesizer: SynthesizerRef | None = None
+
+StageDefaults = create_model(
+    "StageDefaults", __base__=Strict, __doc__="Stages bound to every variant that does not name its own.", **_stage_fields()
+)
 
 
 def _variant_entry(value: Any) -> Any:
     return {"variant": value} if isinstance(value, str) else value
 
 
-class VariantSpec(_Strict):
-    """One variant: its order (with optional preset number) and any stages it binds itself."""
-
-    variant: str = Field(description="Order and optional preset number, e.g. 'PDS' or 'SPD2'.")
-    label: str | None = Field(default=None, description="Row name in reports; default: the paper's notation, e.g. 'P-SL (SPD1)'.")
-    parser: ParserRef | None = None
-    descriptor: DescriptorRef | None = None
-    synthesizer: SynthesizerRef | None = None
-
-
-class TrainingConfig(_Strict):
-    """The per-variant GCN place classifier and its training data."""
-
-    hidden: int = Field(default=256, gt=0, description="Hidden width of the GCN.")
-    layers: int = Field(default=2, ge=1, description="Graph-convolution layers.")
-    dropout: float = Field(default=0.5, ge=0.0, lt=1.0)
-    readout: Literal["mean", "weighted"] = Field(
-        default="mean", description="Pool node states by their mean, or by their node weights (whole image 1, parts 1/K)."
-    )
-    epochs: int = Field(default=200, gt=0)
-    lr: float = Field(default=1e-3, gt=0.0)
-    weight_decay: float = Field(default=5e-4, ge=0.0)
-    patience: int = Field(default=20, gt=0, description="Epochs without validation improvement before stopping.")
-    validation_fraction: float = Field(default=0.2, gt=0.0, lt=1.0, description="Share of training graphs held out for early stopping.")
-    synthetic_per_class: int = Field(default=4, gt=0, description="Synthetic graphs per class (variants with S): the target and jittered copies.")
-    jitter_m: float = Field(default=0.15, ge=0.0, description="Jittered copies move up to this far from the training viewpoint, metres.")
-    jitter_deg: float = Field(default=5.0, ge=0.0, description="...and turn up to this much, degrees.")
-    real_for_every_class: bool = Field(
-        default=True,
-        description="Variants without S train each class of a cell on the cell's real graph (the paper: they 'simply use "
-        "available training images as they are'); false trains them on the real classes only.",
-    )
-    seed: int = 0
+VariantSpec = create_model(
+    "VariantSpec",
+    __base__=Strict,
+    __doc__="One variant: its order (with optional preset number) and any stages it binds itself.",
+    variant=(str, Field(description="Order and optional preset number, e.g. 'PDS' or 'SPD2'.")),
+    label=(
+        str | None,
+        Field(default=None, description="Row name in reports; default: the paper's notation, e.g. 'P-SL (SPD1)'."),
+    ),
+    **_stage_fields(),
+)
 
 
-class ExperimentConfig(_Strict):
-    """A whole experiment: where views come from, the variants and their stages, training, fusion."""
+class VariantsConfig(Strict):
+    """The variants of a config and the stages bound to them."""
 
-    workspace: WorkspaceRef
-    stages: StageDefaults = StageDefaults()
-    variants: list[Annotated[VariantSpec, BeforeValidator(_variant_entry)]] = Field(min_length=1)
-    protocol: ProtocolConfig = ProtocolConfig()
-    training: TrainingConfig = TrainingConfig()
-    fuser: FuserRef = FuserRef(name="rrf")
-    output: Path = Field(default=Path("runs/experiment"), description="Folder for caches, checkpoints and reports.")
+    stages: StageDefaults = StageDefaults()  # type: ignore[valid-type]
+    variants: list[Annotated[VariantSpec, BeforeValidator(_variant_entry)]] = Field(min_length=1)  # type: ignore[valid-type]
 
 
 @dataclass(frozen=True)
@@ -169,6 +118,10 @@ class ResolvedStage:
     kind: str
     cls: type[Stage]
     config: StageConfig
+
+    @property
+    def name(self) -> str:
+        return self.cls.name
 
     def create(self) -> Stage:
         return self.cls(self.config)
@@ -187,17 +140,6 @@ class ResolvedVariant:
         return BoundVariant(self.variant, label=self.label, **made)
 
 
-@dataclass(frozen=True)
-class Experiment:
-    """A validated config with every stage resolved."""
-
-    config: ExperimentConfig
-    workspace: ResolvedStage
-    variants: list[ResolvedVariant]
-    fuser: ResolvedStage
-    source: str = "<config>"
-
-
 def format_loc(loc: Iterable[str | int]) -> str:
     """``('variants', 2, 'descriptor', 'k')`` -> ``variants[2].descriptor.k``."""
     out = ""
@@ -206,7 +148,8 @@ def format_loc(loc: Iterable[str | int]) -> str:
     return out or "(top level)"
 
 
-def _pydantic_problems(exc: ValidationError, prefix: tuple[str | int, ...] = ()) -> list[str]:
+def pydantic_problems(exc: ValidationError, prefix: tuple[str | int, ...] = ()) -> list[str]:
+    """Each error of a pydantic validation as one ``path: message`` line."""
     problems = []
     for err in exc.errors(include_url=False):
         loc = [p for p in err["loc"] if not (isinstance(p, str) and p.startswith("function-"))]
@@ -217,95 +160,39 @@ def _pydantic_problems(exc: ValidationError, prefix: tuple[str | int, ...] = ())
     return problems
 
 
-def load_experiment(path: str | Path, registry: Registry | None = None) -> Experiment:
-    """Read and validate an experiment config file; raise :class:`ConfigError` with every problem."""
+def read_toml(path: str | Path) -> dict[str, Any]:
+    """A TOML file's contents; a missing, unreadable or malformed file is one line naming it."""
     path = Path(path)
     try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
+        return tomllib.loads(path.read_text(encoding="utf-8"))
     except FileNotFoundError:
-        raise SsgaError(f"{path}: no such config file") from None
+        raise InputError(f"{path}: no such config file") from None
+    except IsADirectoryError:
+        raise InputError(f"{path}: is a folder, not a config file") from None
     except (OSError, UnicodeDecodeError) as exc:
-        raise SsgaError(f"{path}: cannot read the config: {exc}") from None
+        raise InputError(f"{path}: cannot read the config: {exc}") from None
     except tomllib.TOMLDecodeError as exc:
-        raise SsgaError(f"{path}: not valid TOML: {exc}") from None
-    return validate_experiment(data, registry, source=str(path), base_dir=path.parent)
+        raise InputError(f"{path}: not valid TOML: {exc}") from None
 
 
-def validate_experiment(
-    data: Mapping[str, Any], registry: Registry | None = None, *, source: str = "<config>", base_dir: Path | None = None
-) -> Experiment:
-    """Validate a config mapping (see the module docstring).
+class Resolver:
+    """Resolves stage references to classes and validated configs, collecting problems.
 
     Args:
+        registry: where stage names are looked up.
         base_dir: relative paths in stage parameters (fields typed ``Path``, such as a
-            mesh file) are taken relative to this folder, the config file's.
+            mesh file or a folder of images) are taken from this folder: the config
+            file's, or the current directory for options given on the command line.
     """
-    try:
-        config = ExperimentConfig.model_validate(data)
-    except ValidationError as exc:
-        raise ConfigError(source, _pydantic_problems(exc)) from None
-    registry = registry or default_registry()
-    problems: list[str] = []
-    resolve = _Resolver(registry, problems, base_dir)
 
-    workspace = resolve(config.workspace, "workspace", ("workspace",))
-    fuser = resolve(config.fuser, "fuser", ("fuser",))
-    defaults = {f: resolve(getattr(config.stages, f), f, ("stages", f)) for f in STAGE_FIELDS}
-    available = workspace.cls.produces if workspace else None
-
-    variants: list[ResolvedVariant] = []
-    labels: dict[str, int] = {}
-    for i, spec in enumerate(config.variants):
-        at = ("variants", i)
-        try:
-            variant = parse_variant(spec.variant)
-        except SsgaError as exc:
-            problems.append(f"{format_loc((*at, 'variant'))}: {exc}")
-            continue
-        stages: dict[str, ResolvedStage] = {}
-        classes: dict[str, type[Stage]] = {}
-        for kind in variant.kinds():
-            ref = getattr(spec, kind)
-            if ref is None:
-                ref = getattr(config.stages, kind)
-                stage = defaults[kind]
-                if ref is None:
-                    problems.append(f"{format_loc((*at, kind))}: {variant} needs a {kind}; bind one here or in [stages]")
-            else:
-                stage = resolve(ref, kind, (*at, kind))
-            if stage is not None:
-                stages[kind] = stage
-            if ref is not None and id(ref) in resolve.classes:
-                classes[kind] = resolve.classes[id(ref)]
-        # Check the binding whenever every class is known, even if some parameters were
-        # wrong, so one run reports both kinds of problem.
-        if available is not None and len(classes) == len(variant.order):
-            problems.extend(f"{format_loc(at)}: {p}" for p in check_binding(variant, classes, available))
-        if len(stages) < len(variant.order):
-            continue
-        parser = stages["parser"].cls if "parser" in stages else None
-        label = spec.label or table_label(variant, parser, stages["descriptor"].cls)
-        if label in labels:
-            problems.append(f"{format_loc((*at, 'variant'))}: label {label!r} is also variants[{labels[label]}]'s; give one a preset number (e.g. {variant.order}2) or a label")
-        labels.setdefault(label, i)
-        variants.append(ResolvedVariant(variant, label, stages))
-
-    if problems or workspace is None or fuser is None:
-        raise ConfigError(source, problems)
-    return Experiment(config=config, workspace=workspace, variants=variants, fuser=fuser, source=source)
-
-
-class _Resolver:
-    """Resolves stage references to classes and validated configs, collecting problems."""
-
-    def __init__(self, registry: Registry, problems: list[str], base_dir: Path | None = None) -> None:
+    def __init__(self, registry: Registry, base_dir: Path | None = None) -> None:
         self.registry = registry
-        self.problems = problems
         self.base_dir = base_dir
-        self.classes: dict[int, type[Stage]] = {}
-        """Class of each reference whose name resolved, by ``id(ref)``."""
+        self.problems: list[str] = []
+        self._classes: dict[int, type[Stage]] = {}
 
-    def __call__(self, ref: StageRef | None, kind: str, at: tuple[str | int, ...]) -> ResolvedStage | None:
+    def stage(self, ref: StageRef | None, kind: str, at: tuple[str | int, ...]) -> ResolvedStage | None:
+        """``ref`` resolved, or None (with the problem recorded)."""
         if ref is None:
             return None
         try:
@@ -313,7 +200,7 @@ class _Resolver:
         except SsgaError as exc:
             self.problems.append(f"{format_loc((*at, 'name'))}: {exc}")
             return None
-        self.classes[id(ref)] = cls
+        self._classes[id(ref)] = cls
         params: dict[str, Any] = {}
         if ref.preset is not None:
             if ref.preset not in cls.presets:
@@ -325,32 +212,99 @@ class _Resolver:
         try:
             config = cls.Config.model_validate(params)
         except ValidationError as exc:
-            self.problems.extend(_pydantic_problems(exc, at))
+            self.problems.extend(pydantic_problems(exc, at))
             return None
         if self.base_dir is not None:
             relative = {k: self.base_dir / v for k, v in config if isinstance(v, Path) and not v.is_absolute()}
             config = config.model_copy(update=relative) if relative else config
         return ResolvedStage(kind, cls, config)
 
+    def variants(self, config: VariantsConfig, available: frozenset[Data] | None = None, at: tuple[str | int, ...] = ()) -> list[ResolvedVariant]:
+        """Every variant of ``config`` with its stages; problems are recorded, not raised.
 
-def resolve_stage(kind: str, ref: Mapping[str, Any], registry: Registry | None = None, *, source: str = "<options>") -> ResolvedStage:
-    """Resolve one ``{name = ..., ...}`` stage reference outside an experiment config (CLI options)."""
-    problems: list[str] = []
+        Args:
+            available: what the workspace's real views carry, to check each binding
+                against; ``None`` checks the stages against each other only.
+        """
+        defaults = {kind: self.stage(getattr(config.stages, kind), kind, (*at, "stages", kind)) for kind in PIPELINE_KIND_NAMES}
+        variants: list[ResolvedVariant] = []
+        labels: dict[str, int] = {}
+        for i, spec in enumerate(config.variants):
+            here = (*at, "variants", i)
+            try:
+                variant = parse_variant(spec.variant)
+            except SsgaError as exc:
+                self.problems.append(f"{format_loc((*here, 'variant'))}: {exc}")
+                continue
+            stages: dict[str, ResolvedStage] = {}
+            classes: dict[str, type[Stage]] = {}
+            for kind in variant.kinds():
+                ref = getattr(spec, kind)
+                if ref is None:
+                    ref = getattr(config.stages, kind)
+                    stage = defaults[kind]
+                    if ref is None:
+                        self.problems.append(f"{format_loc((*here, kind))}: {variant} needs a {kind}; bind one here or in [stages]")
+                else:
+                    stage = self.stage(ref, kind, (*here, kind))
+                if stage is not None:
+                    stages[kind] = stage
+                if ref is not None and id(ref) in self._classes:
+                    classes[kind] = self._classes[id(ref)]
+            # Check the binding whenever every class is known, even if some parameters were
+            # wrong, so one run reports both kinds of problem.
+            if len(classes) == len(variant.order):
+                views = available if available is not None else frozenset(Data)
+                self.problems.extend(f"{format_loc(here)}: {p}" for p in check_binding(variant, classes, views))
+            if len(stages) < len(variant.order):
+                continue
+            label = spec.label or table_label(variant, stages["parser"].cls if "parser" in stages else None, stages["descriptor"].cls)
+            if label in labels:
+                self.problems.append(
+                    f"{format_loc((*here, 'variant'))}: label {label!r} is also variants[{labels[label]}]'s; "
+                    f"give one a preset number (e.g. {variant.order}2) or a label"
+                )
+            labels.setdefault(label, i)
+            variants.append(ResolvedVariant(variant, label, stages))
+        return variants
+
+    def raise_problems(self, source: str) -> None:
+        if self.problems:
+            raise ConfigError(source, self.problems)
+
+
+def resolve_stage(
+    kind: str, ref: Mapping[str, Any], registry: Registry, *, base_dir: Path | None = None, source: str = "<options>"
+) -> ResolvedStage:
+    """Resolve one ``{name = ..., ...}`` stage reference (command-line options, a plugin's tests)."""
+    kind_named(kind)
     try:
         parsed = REF_TYPES[kind].model_validate(ref)
     except ValidationError as exc:
-        raise ConfigError(source, _pydantic_problems(exc, (kind,))) from None
-    stage = _Resolver(registry or default_registry(), problems)(parsed, kind, (kind,))
-    if stage is None:
-        raise ConfigError(source, problems)
+        raise ConfigError(source, pydantic_problems(exc, (kind,))) from None
+    resolver = Resolver(registry, base_dir)
+    stage = resolver.stage(parsed, kind, (kind,))
+    resolver.raise_problems(source)
+    assert stage is not None
     return stage
 
 
-def experiment_schema(registry: Registry | None = None) -> dict[str, Any]:
-    """JSON schema of the config file, with each stage reference listing the installed plugins' own schemas."""
-    registry = registry or default_registry()
-    schema = ExperimentConfig.model_json_schema()
-    defs = schema.setdefault("$defs", {})
+def resolve_variants(path: str | Path, registry: Registry) -> list[ResolvedVariant]:
+    """The variants a config file binds, with their stages (its other sections are not read)."""
+    path = Path(path)
+    data = read_toml(path)
+    try:
+        config = VariantsConfig.model_validate({k: data[k] for k in ("stages", "variants") if k in data})
+    except ValidationError as exc:
+        raise ConfigError(str(path), pydantic_problems(exc)) from None
+    resolver = Resolver(registry, path.parent)
+    variants = resolver.variants(config)
+    resolver.raise_problems(str(path))
+    return variants
+
+
+def stage_schemas(registry: Registry, defs: dict[str, Any]) -> None:
+    """Put in ``defs`` (a JSON schema's ``$defs``) each kind's reference as the installed plugins' own schemas."""
     for kind, ref_type in REF_TYPES.items():
         choices = []
         for entry in (e for e in registry if e.kind == kind):
@@ -362,5 +316,3 @@ def experiment_schema(registry: Registry | None = None) -> dict[str, Any]:
             choices.append({**sub, "title": f"{kind} {entry.name}", "properties": props, "required": ["name", *sub.get("required", [])]})
         if choices:
             defs[ref_type.__name__] = {"description": ref_type.__doc__, "oneOf": choices}
-    return schema
-

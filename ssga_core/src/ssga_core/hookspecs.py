@@ -1,10 +1,11 @@
 """The hooks an ssga plugin implements.
 
 A plugin is a module (or object) registered under the ``ssga`` entry-point group that
-implements one or more of these hooks with :data:`ssga_core.hookimpl`. Every hook is
-called once, when the plugin manager builds its :class:`~ssga_core.plugins.Registry`
-(at the start of each CLI command), with no arguments, and returns a list of
-classes. Import heavy dependencies (torch models, OpenCV contrib...) *inside* your
+implements one or more of these hooks with :data:`ssga_core.hookimpl`. Every
+``ssga_register_<kind>s`` hook (one per stage kind, :mod:`ssga_core.kinds`) is called
+once, when the plugin manager builds its :class:`~ssga_core.plugins.Registry` (at the
+start of each CLI command), with no arguments, and returns a list of classes;
+:func:`ssga_register_commands` is called once when the ``ssga`` command starts. Import heavy dependencies (torch models, OpenCV contrib...) *inside* your
 stage's methods or inside the hook, not at module top, so listing plugins stays fast
 and one broken dependency does not hide the rest.
 
@@ -14,9 +15,14 @@ plugins registering the same name is an error naming both.
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import pluggy
 
 from ssga_core.stages import Descriptor, Fuser, Parser, Synthesizer, WorkspaceSource
+
+if TYPE_CHECKING:
+    import typer
 
 hookspec = pluggy.HookspecMarker("ssga")
 
@@ -61,4 +67,18 @@ def ssga_register_workspaces() -> list[type[WorkspaceSource]]:
     """Workspace sources: generated scenes, mesh renderers, folders of captured images.
 
     :return: subclasses of :class:`ssga_core.WorkspaceSource`.
+    """
+
+
+@hookspec
+def ssga_register_commands(app: typer.Typer) -> None:
+    """Add commands to the ``ssga`` command line (as datasette's ``register_commands``).
+
+    Called once when the ``ssga`` command starts, before its arguments are parsed.
+    Attach commands with ``app.command()`` or sub-apps with ``app.add_typer()``; wrap
+    each in :func:`ssga_core.cli.command` so user errors print as one line. Keep the
+    module that implements this hook light to import: heavy imports belong inside the
+    commands, so ``ssga --help`` stays fast.
+
+    :param app: the ``ssga`` typer app.
     """

@@ -29,22 +29,44 @@ whole image and 1/K per part; edges join boxes that overlap or are within 20 px.
 Real images (queries, and the one real training image per cell) take the query path:
 the order without S. So ``PDS``, ``PSD`` and ``SPD`` all parse-and-describe a query
 like ``PD``; ``DS`` and ``SD`` like ``D``.
+
+Training data (paper §4.1), :func:`training_graphs`: each cell has one real view, of
+one of its classes. A variant with S renders that view at every class's training
+viewpoints, so each class gets graphs of its own; a variant without S has only the
+real graph, which stands for every class of its cell (they "simply use available
+training images as they are"), or for its own class only if so asked. The descriptor
+is fitted first, on the views the graphs will be built from.
 """
 
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
+from typing import Protocol
 
 import numpy as np
 
-from ssga_core.cache import FeatureCache
 from ssga_core.data import Data, LocalFeatures, Regions, SceneGraph, Synthesis, View
 from ssga_core.errors import InputError
 from ssga_core.geometry import Pose
 from ssga_core.graph import assemble
+from ssga_core.kinds import PIPELINE_KIND_NAMES
 from ssga_core.stages import Descriptor, LocalDescriptor, Parser, RegionDescriptor, Synthesizer
 from ssga_core.variants import Variant, check_binding
+
+
+class FeatureMemo(Protocol):
+    """Somewhere to reuse the regions and local features of real views (a cache).
+
+    The eight variants of an experiment parse and describe the same real images; a
+    memo (such as the benchmark's on-disk cache) computes each once. Synthetic views
+    are never looked up: each is made once.
+    """
+
+    def regions(self, parser: Parser, view: View) -> Regions: ...
+
+    def local_features(self, descriptor: LocalDescriptor, view: View) -> LocalFeatures: ...
 
 
 @dataclass(frozen=True)
@@ -58,11 +80,7 @@ class BoundVariant:
     label: str = ""
 
     def __post_init__(self) -> None:
-        bound = {
-            "parser": type(self.parser) if self.parser is not None else None,
-            "descriptor": type(self.descriptor),
-            "synthesizer": type(self.synthesizer) if self.synthesizer is not None else None,
-        }
+        bound = {kind: type(stage) if (stage := getattr(self, kind)) is not None else None for kind in PIPELINE_KIND_NAMES}
         # Only the stage contract is checked here; what the workspace's views carry is
         # checked by the config, which knows the workspace.
         problems = check_binding(self.variant, bound, frozenset(Data))
@@ -78,7 +96,9 @@ def table_label(variant: Variant, parser: Parser | type[Parser] | None, descript
     return f"{head} ({variant})"
 
 
-def build_graph(bound: BoundVariant, view: View, target: Pose | None = None, cache: FeatureCache | None = None) -> SceneGraph:
+def build_graph(
+    bound: BoundVariant, view: View, target: Pose | None = None, memo: FeatureMemo | None = None, *, synthesis: Synthesis | None = None
+) -> SceneGraph:
     """The scene graph of ``view`` under ``bound``'s order.
 
     Args:
@@ -86,7 +106,9 @@ def build_graph(bound: BoundVariant, view: View, target: Pose | None = None, cac
         view: a real view.
         target: the pose to synthesize for a pseudo-training graph; ``None`` for a
             real image (a query, or a cell's real training view): the query path.
-        cache: reuse the regions and local features of real views computed before.
+        memo: reuse the regions and local features of real views computed before.
+        synthesis: ``view`` already rendered at ``target`` by ``bound``'s synthesizer
+            (the synthesizer always sees the real view, whatever the order).
     """
     if target is None:
         order = bound.variant.query_order
@@ -94,7 +116,7 @@ def build_graph(bound: BoundVariant, view: View, target: Pose | None = None, cac
         order = bound.variant.order
     else:
         raise InputError(f"variant {bound.variant} has no S: it cannot build a graph for another pose")
-    state = _State(view, cache=cache)
+    state = _State(view, memo=memo)
     for stage in order:
         if stage == "P":
             assert bound.parser is not None
@@ -103,8 +125,85 @@ def build_graph(bound: BoundVariant, view: View, target: Pose | None = None, cac
             state.describe(bound.descriptor)
         else:
             assert bound.synthesizer is not None and target is not None
-            state.synthesize(bound.synthesizer, target)
+            state.synthesize(synthesis or bound.synthesizer.synthesize(view, target))
     return state.graph(bound.descriptor)
+
+
+@dataclass(frozen=True)
+class CellTraining:
+    """What one location cell gives a variant to learn from.
+
+    Attributes:
+        real: the cell's one real view.
+        real_class: the class that view belongs to.
+        poses: for every class of the cell (the real one included), the poses to
+            synthesize its pseudo-training graphs at: the class's training viewpoint
+            first (none for the real class, which has its real view), then any
+            jittered copies.
+    """
+
+    real: View
+    real_class: int
+    poses: Mapping[int, Sequence[Pose]]
+
+
+Progress = Callable[[str, int, int], None]
+
+
+def training_graphs(
+    bound: BoundVariant,
+    cells: Sequence[CellTraining],
+    *,
+    real_for_every_class: bool = True,
+    memo: FeatureMemo | None = None,
+    progress: Progress | None = None,
+) -> tuple[list[SceneGraph], list[int]]:
+    """Fit ``bound``'s descriptor and build every training graph with its class (see the module docstring).
+
+    Args:
+        real_for_every_class: without S, the real graph stands for every class of its
+            cell (the paper's setting); false: for its own class only.
+        progress: called with ``("training graphs", done, total)``.
+
+    Returns:
+        the graphs and their classes: every cell's real graph first, then the
+        synthetic graphs class by class.
+    """
+    synthesizer = bound.synthesizer
+    # The descriptor learns from the views its graphs are built from: each real view
+    # and, with S, one synthetic view per other class, at its training viewpoint. Those
+    # syntheses are kept for the graphs, so none is rendered twice.
+    first: dict[tuple[int, int], Synthesis] = {}
+    fit_views = [cell.real for cell in cells]
+    fit_labels = [cell.real_class for cell in cells]
+    if synthesizer is not None:
+        for c, cell in enumerate(cells):
+            for place, poses in sorted(cell.poses.items()):
+                if place != cell.real_class and poses:
+                    first[c, place] = synthesizer.synthesize(cell.real, poses[0])
+                    fit_views.append(first[c, place].view)
+                    fit_labels.append(place)
+    bound.descriptor.fit(fit_views, fit_labels)
+
+    graphs: list[SceneGraph] = []
+    labels: list[int] = []
+    for cell in cells:
+        real = build_graph(bound, cell.real, memo=memo)
+        stands_for = [cell.real_class]
+        if synthesizer is None and real_for_every_class:
+            stands_for = sorted({cell.real_class, *cell.poses})
+        graphs.extend([real] * len(stands_for))
+        labels.extend(stands_for)
+    if synthesizer is None:
+        return graphs, labels
+    todo = sorted((place, c, i, pose) for c, cell in enumerate(cells) for place, poses in cell.poses.items() for i, pose in enumerate(poses))
+    for n, (place, c, i, pose) in enumerate(todo, 1):
+        synthesis = first.pop((c, place), None) if i == 0 else None
+        graphs.append(build_graph(bound, cells[c].real, pose, memo, synthesis=synthesis))
+        labels.append(place)
+        if progress:
+            progress("training graphs", n, len(todo))
+    return graphs, labels
 
 
 @dataclass
@@ -115,21 +214,20 @@ class _State:
     local_nodes: np.ndarray | None = None
     """Per local feature, its part index fixed before synthesis (-1 for none)."""
     region_features: np.ndarray | None = field(default=None)
-    cache: FeatureCache | None = None
+    memo: FeatureMemo | None = None
 
     def parse(self, parser: Parser) -> None:
-        self.regions = self.cache.regions(parser, self.view) if self.cache else parser.parse(self.view)
+        self.regions = self.memo.regions(parser, self.view) if self.memo else parser.parse(self.view)
 
     def describe(self, descriptor: Descriptor) -> None:
         if isinstance(descriptor, LocalDescriptor):
-            self.local = self.cache.local_features(descriptor, self.view) if self.cache else descriptor.extract(self.view)
+            self.local = self.memo.local_features(descriptor, self.view) if self.memo else descriptor.extract(self.view)
         elif isinstance(descriptor, RegionDescriptor):
             self.region_features = descriptor.describe(self.view, self.regions)
         else:
             raise TypeError(f"{type(descriptor).__name__} must subclass LocalDescriptor or RegionDescriptor")
 
-    def synthesize(self, synthesizer: Synthesizer, target: Pose) -> None:
-        syn = synthesizer.synthesize(self.view, target)
+    def synthesize(self, syn: Synthesis) -> None:
         keep_parts = None
         if self.regions is not None:
             keep_parts, moved = carry_regions(self.regions, syn)

@@ -35,18 +35,10 @@ from pydantic import BaseModel
 
 from ssga_core import hookspecs
 from ssga_core.errors import PluginError, UnknownStageError
-from ssga_core.stages import STAGE_BASES, Stage, StageConfig
+from ssga_core.kinds import KIND_NAMES, KINDS, kind_named
+from ssga_core.stages import Stage, StageConfig
 
 ENTRY_POINT_GROUP = "ssga"
-
-HOOKS: dict[str, str] = {
-    "parser": "ssga_register_parsers",
-    "descriptor": "ssga_register_descriptors",
-    "synthesizer": "ssga_register_synthesizers",
-    "fuser": "ssga_register_fusers",
-    "workspace": "ssga_register_workspaces",
-}
-"""Stage kind -> the hook that registers implementations of it."""
 
 _NAME = re.compile(r"^[a-z0-9][a-z0-9_.-]*$")
 
@@ -87,7 +79,7 @@ class StageEntry:
     plugin: PluginInfo
 
 
-def _one_line(exc: BaseException) -> str:
+def one_line(exc: BaseException) -> str:
     text = " ".join(str(exc).split())
     return f"{type(exc).__name__}: {text}" if text else type(exc).__name__
 
@@ -115,12 +107,12 @@ class PluginSet:
         try:
             self.pm.register(plugin, name=name)
         except (pluggy.PluginValidationError, ValueError) as exc:
-            self.failures.append(PluginFailure(info, _one_line(exc)))
+            self.failures.append(PluginFailure(info, one_line(exc)))
             return False
         unknown = [h.name for h in self.pm.get_hookcallers(plugin) or [] if not h.has_spec()]
         if unknown:
             self.pm.unregister(plugin)
-            known = ", ".join(HOOKS.values())
+            known = ", ".join(_hook_names())
             reason = f"implements unknown hook(s) {', '.join(sorted(unknown))}; ssga's hooks are {known}"
             self.failures.append(PluginFailure(info, reason))
             return False
@@ -143,25 +135,37 @@ class PluginSet:
                 continue
             if self.pm.has_plugin(ep.name):
                 continue
-            try:
-                plugin = ep.load()
-            except Exception as exc:  # noqa: BLE001 - any import failure is the plugin's, reported by name
-                self.failures.append(PluginFailure(info, f"cannot import {ep.value}: {_one_line(exc)}"))
-                continue
-            self.register(plugin, ep.name, info=info)
+            plugin = self._import(ep.load, ep.value, info)
+            if plugin is not None:
+                self.register(plugin, ep.name, info=info)
 
     def load_modules(self, names: Iterable[str]) -> None:
-        """Import and register plugin modules by dotted name, recording failures per module."""
-        if "" not in sys.path and os.getcwd() not in sys.path:
-            sys.path.insert(0, os.getcwd())
+        """Import and register plugin modules by dotted name, recording failures per module.
+
+        The current directory is searched too, but *after* everything installed: the
+        user asked for these modules by name, and a stray ``torch.py`` in the working
+        directory must not shadow the real one.
+        """
+        names = list(names)
+        if names and os.getcwd() not in sys.path:
+            sys.path.append(os.getcwd())
         for name in names:
             info = PluginInfo(name=name, distribution="(SSGA_PLUGIN_MODULES)")
-            try:
-                module = importlib.import_module(name)
-            except Exception as exc:  # noqa: BLE001 - reported by name, like an entry point
-                self.failures.append(PluginFailure(info, f"cannot import {name}: {_one_line(exc)}"))
-                continue
-            self.register(module, name, info=info)
+            module = self._import(lambda: importlib.import_module(name), name, info)
+            # A module an entry point already registered (naming an installed plugin) is
+            # the same object: registering it twice would only clash with itself.
+            if module is not None and not self.pm.is_registered(module):
+                self.register(module, name, info=info)
+
+    def _import(self, load: Any, what: str, info: PluginInfo) -> Any:
+        """``load()``, or None with the failure recorded; a plugin cannot end ssga by exiting."""
+        try:
+            return load()
+        except SystemExit as exc:
+            self.failures.append(PluginFailure(info, f"importing {what} called sys.exit({exc.code!r})"))
+        except Exception as exc:  # noqa: BLE001 - any import failure is the plugin's, reported by name
+            self.failures.append(PluginFailure(info, f"cannot import {what}: {one_line(exc)}"))
+        return None
 
     def registry(self) -> Registry:
         """Call every registration hook and index the classes (see :class:`Registry`)."""
@@ -189,13 +193,20 @@ def get_plugin_manager(*, load_entrypoints: bool = True) -> PluginSet:
 
 
 @lru_cache(maxsize=1)
+def default_plugins() -> PluginSet:
+    """The installed plugins, loaded once per process (for the CLI)."""
+    return get_plugin_manager()
+
+
+@lru_cache(maxsize=1)
 def default_registry() -> Registry:
-    """The registry of installed plugins, built once per process (for the CLI and the API).
+    """The registry of installed plugins, built once per process (for the CLI).
 
     Plugin failures are warnings on stderr, or an error under ``SSGA_STRICT_PLUGINS=1``.
-    Tests should build their own with :func:`get_plugin_manager` instead.
+    Library functions take a registry as an argument instead; tests build their own
+    with :func:`get_plugin_manager`.
     """
-    registry = get_plugin_manager().registry()
+    registry = default_plugins().registry()
     if registry.failures:
         if _env_flag("SSGA_STRICT_PLUGINS"):
             raise PluginError("; ".join(map(str, registry.failures)) + " (SSGA_STRICT_PLUGINS is set)")
@@ -204,11 +215,35 @@ def default_registry() -> Registry:
     return registry
 
 
+def plugin_rows(registry: Registry) -> list[dict[str, Any]]:
+    """One row per registered stage implementation: where it comes from, what it does, its config."""
+    return [
+        {
+            "distribution": entry.plugin.distribution,
+            "version": entry.plugin.version,
+            "entry_point": entry.plugin.name,
+            "kind": entry.kind,
+            "name": entry.name,
+            "abbrev": entry.cls.abbrev,
+            "class": f"{entry.cls.__module__}.{entry.cls.__qualname__}",
+            "consumes": sorted(str(d) for d in entry.cls.consumes),
+            "produces": sorted(str(d) for d in entry.cls.produces),
+            "presets": sorted(entry.cls.presets),
+            "config_schema": entry.cls.Config.model_json_schema(),
+        }
+        for entry in registry
+    ]
+
+
+def _hook_names() -> list[str]:
+    return sorted(name for name in dir(hookspecs) if name.startswith("ssga_"))
+
+
 def _check_stage_class(kind: str, cls: object) -> str | None:
     """Why ``cls`` is not a valid implementation of ``kind``, or None."""
-    base = STAGE_BASES[kind]
+    base = kind_named(kind).base
     if not (inspect.isclass(cls) and issubclass(cls, base)):
-        return f"returned {cls!r} from {HOOKS[kind]}, which is not a subclass of ssga_core.{base.__name__}"
+        return f"returned {cls!r} from {kind_named(kind).hook}, which is not a subclass of ssga_core.{base.__name__}"
     name = getattr(cls, "name", None)
     if not isinstance(name, str) or not _NAME.match(name):
         return f"{kind} class {cls.__name__} needs a `name` of lower-case letters, digits, '.', '_' or '-', got {name!r}"
@@ -247,14 +282,14 @@ class Registry:
         # Each implementation is called on its own, to know which plugin gave which class;
         # that bypasses pluggy's hook-call monitoring, so trace here (SSGA_TRACE_PLUGINS).
         trace = plugins.pm.trace.root.get("hook")
-        for kind, hook in HOOKS.items():
+        for kind, hook in ((k.name, k.hook) for k in KINDS):
             for impl in getattr(plugins.pm.hook, hook).get_hookimpls():
                 info = plugins.infos.get(impl.plugin_name, PluginInfo(impl.plugin_name))
                 try:
                     classes = list(impl.function() or [])
                     trace(f"{hook} [{impl.plugin_name}] ->", [getattr(c, "name", c) for c in classes])
-                except Exception as exc:  # noqa: BLE001 - a broken plugin must not hide the others
-                    failures.append(PluginFailure(info, f"{hook}() raised {_one_line(exc)}"))
+                except (Exception, SystemExit) as exc:  # noqa: BLE001 - a broken plugin must not hide the others
+                    failures.append(PluginFailure(info, f"{hook}() raised {one_line(exc)}"))
                     continue
                 problems = [p for p in (_check_stage_class(kind, c) for c in classes) if p]
                 if problems:
@@ -264,7 +299,7 @@ class Registry:
         return cls(entries, failures)
 
     def __iter__(self) -> Iterator[StageEntry]:
-        return iter(sorted(self._entries.values(), key=lambda e: (list(HOOKS).index(e.kind), e.name)))
+        return iter(sorted(self._entries.values(), key=lambda e: (KIND_NAMES.index(e.kind), e.name)))
 
     def names(self, kind: str) -> list[str]:
         return sorted(name for (k, name) in self._entries if k == kind)

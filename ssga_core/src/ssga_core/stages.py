@@ -1,4 +1,4 @@
-"""Stage protocols: what a parser, descriptor, synthesizer, fuser or workspace source is.
+"""Stage base classes (the stage protocols): what a parser, descriptor, synthesizer, fuser or workspace source is.
 
 Each implementation is a subclass that declares, as class attributes,
 
@@ -19,7 +19,7 @@ from __future__ import annotations
 
 from abc import ABC, abstractmethod
 from collections.abc import Mapping, Sequence
-from typing import TYPE_CHECKING, Any, ClassVar
+from typing import Any, ClassVar
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict
@@ -27,10 +27,6 @@ from pydantic import BaseModel, ConfigDict
 from ssga_core.data import Data, LocalFeatures, Regions, Synthesis, View
 from ssga_core.errors import InputError
 from ssga_core.geometry import Pose
-
-if TYPE_CHECKING:
-    from ssga_core.workspace import AnyWorkspace
-
 
 class StageConfig(BaseModel):
     """Base of every stage's config: unknown keys are errors, instances are immutable."""
@@ -210,17 +206,10 @@ class WorkspaceSource(Stage):
     produces = frozenset({Data.RGB})
 
     @abstractmethod
-    def open(self) -> AnyWorkspace:
-        """Open the workspace this source's config describes: one that renders any pose
-        (:class:`~ssga_core.workspace.Workspace`) or a set of captured views
-        (:class:`~ssga_core.workspace.CapturedWorkspace`)."""
+    def open(self) -> Any:
+        """Open the workspace this source's config describes.
 
-
-STAGE_BASES: dict[str, type[Stage]] = {
-    "parser": Parser,
-    "descriptor": Descriptor,
-    "synthesizer": Synthesizer,
-    "fuser": Fuser,
-    "workspace": WorkspaceSource,
-}
-"""Each stage kind and the base class its implementations subclass."""
+        The workspace interfaces belong to the benchmark layer, which is the only user
+        of workspaces: return a :class:`ssga_bench.Workspace` (renders any pose) or a
+        :class:`ssga_bench.CapturedWorkspace` (a fixed set of captured views).
+        """

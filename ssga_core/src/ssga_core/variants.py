@@ -9,7 +9,8 @@ apart two bindings of one order (the paper's ``SPD1`` and ``SPD2``). Grammar, in
     variant = order , [ preset ] ;
     order   = stage , { stage } ;     (* each stage at most once; D must be one of them *)
     stage   = "P" | "D" | "S" ;
-    preset  = nonzero digit , { digit } ;
+    preset  = nonzero digit , { digit } ;      (* at most 6 digits *)
+    nonzero digit = "1" | ... | "9" ;  digit = "0" | nonzero digit ;   (* ASCII only *)
 
 So there are 11 orders: ``D``; ``PD DP SD DS``; ``PDS PSD SPD SDP DPS DSP``. The paper
 uses eight of them (:data:`PAPER_ORDERS`), one from each equivalence class: swapping a
@@ -25,15 +26,20 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass
+from typing import Any
 from itertools import permutations
 
 from ssga_core.data import VIEW_DATA, Data
 from ssga_core.errors import VariantSyntaxError
+from ssga_core.kinds import PIPELINE_KIND_NAMES, PIPELINE_KINDS
 from ssga_core.stages import Stage
 
-STAGES = ("P", "D", "S")
-STAGE_KINDS = {"P": "parser", "D": "descriptor", "S": "synthesizer"}
-STAGE_VERBS = {"P": "parse", "D": "describe", "S": "synthesize"}
+STAGES = tuple(k.letter for k in PIPELINE_KINDS)
+STAGE_KINDS = {k.letter: k.name for k in PIPELINE_KINDS}
+STAGE_VERBS = {k.letter: k.verb for k in PIPELINE_KINDS}
+DIGITS = "0123456789"
+"""The grammar's digits: ASCII only (``str.isdigit`` also accepts ``²`` and ``٣``)."""
+MAX_PRESET_DIGITS = 6
 PAPER_ORDERS = ("PDS", "PSD", "SPD", "DSP", "PD", "DS", "SD", "D")
 """The eight orders of the paper's §3.2, in its order."""
 
@@ -81,7 +87,7 @@ def parse_variant(text: str) -> Variant:
         raise VariantSyntaxError(repr(text), 1, f"expected a string such as 'PDS', got {type(text).__name__}")
     i = 0
     seen: list[str] = []
-    while i < len(text) and not text[i].isdigit():
+    while i < len(text) and text[i] not in DIGITS:
         ch = text[i]
         col = i + 1
         if ch in STAGES:
@@ -105,10 +111,12 @@ def parse_variant(text: str) -> Variant:
         if text[i] == "0":
             raise VariantSyntaxError(text, i + 1, "a preset number starts at 1")
         j = i
-        while j < len(text) and text[j].isdigit():
+        while j < len(text) and text[j] in DIGITS:
             j += 1
         if j < len(text):
             raise VariantSyntaxError(text, j + 1, f"unexpected {text[j]!r} after the preset number {text[i:j]}")
+        if j - i > MAX_PRESET_DIGITS:
+            raise VariantSyntaxError(text, i + MAX_PRESET_DIGITS + 1, f"a preset number has at most {MAX_PRESET_DIGITS} digits")
         preset = int(text[i:j])
     return Variant(order="".join(seen), preset=preset)
 
@@ -135,7 +143,7 @@ def equivalents(order: str) -> list[str]:
 
 def requirements(order: str) -> dict[str, dict[Data, str]]:
     """What an order needs its plugins to produce, by stage kind, each with the reason."""
-    need: dict[str, dict[Data, str]] = {"parser": {}, "descriptor": {}, "synthesizer": {}}
+    need: dict[str, dict[Data, str]] = {name: {} for name in PIPELINE_KIND_NAMES}
     d = order.index("D")
     if "P" in order and d < order.index("P"):
         need["descriptor"][Data.LOCAL_FEATURES] = (
@@ -204,3 +212,22 @@ def check_binding(variant: Variant, bound: Mapping[str, type[Stage] | None], ava
 
 def _names(data: set[Data] | frozenset[Data]) -> str:
     return " and ".join(sorted(d.value for d in data))
+
+
+def order_rows() -> list[dict[str, Any]]:
+    """One row per valid order: its stages, whether the paper uses it, its needs, its equivalents."""
+    rows = []
+    for order in all_orders():
+        variant = parse_variant(order)
+        rows.append(
+            {
+                "order": order,
+                "stages": [STAGE_VERBS[s] for s in order],
+                "in_paper": variant.in_paper,
+                "query_path": variant.query_order,
+                "synthesizes": variant.synthesizes,
+                "needs": {kind: sorted(str(d) for d in data) for kind, data in requirements(order).items() if data},
+                "equivalent_to": equivalents(order),
+            }
+        )
+    return rows

@@ -35,7 +35,7 @@ import numpy as np
 from ssga_descriptor_dense_sift.plugin import DenseSift, DenseSiftConfig
 
 from ssga_core import Camera, Pose, View
-from ssga_core.bow import BagOfWords, BoWConfig
+from ssga_bench import BagOfWords, BoWConfig
 from ssga_core.testing import make_view
 
 SIZE = 256

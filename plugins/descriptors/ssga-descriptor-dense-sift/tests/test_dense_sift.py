@@ -8,8 +8,8 @@ import pytest
 from ssga_descriptor_dense_sift.plugin import DenseSift, DenseSiftConfig, grid_positions, keypoint_octave, root_sift
 
 from ssga_core import Camera, InputError, Pose, View
-from ssga_core.bow import BoWConfig, NotFittedError
-from ssga_core.plugins import get_plugin_manager
+from ssga_bench.bow import BoWConfig, NotFittedError
+from ssga_core.testing import get_plugin_manager
 from ssga_core.testing import check_descriptor, check_descriptor_in_all_orders, make_view
 
 

@@ -8,8 +8,8 @@ from pydantic import ValidationError
 from ssga_parser_semantic.plugin import SemanticConfig, SemanticParser
 
 from ssga_core import ConfigError, InputError, Pose, Regions, View
-from ssga_core.config import resolve_stage
-from ssga_core.plugins import get_plugin_manager
+from ssga_core import resolve_stage
+from ssga_core.testing import get_plugin_manager
 from ssga_core.testing import check_parser, check_parser_in_all_orders, make_view
 from ssga_core.testing.stages import ShiftWarp
 
@@ -152,10 +152,10 @@ def test_bad_config_fails_validation(params, message):
         SemanticConfig(**params)
 
 
-def test_config_resolves_presets_and_reports_bad_values():
-    assert resolve_stage("parser", {"name": "semantic", "preset": "categories"}).config == SemanticConfig(by="category")
+def test_config_resolves_presets_and_reports_bad_values(ssga_installed_registry):
+    assert resolve_stage("parser", {"name": "semantic", "preset": "categories"}, ssga_installed_registry).config == SemanticConfig(by="category")
     with pytest.raises(ConfigError, match=r"parser\.by: Input should be 'instance' or 'category'"):
-        resolve_stage("parser", {"name": "semantic", "by": "object"})
+        resolve_stage("parser", {"name": "semantic", "by": "object"}, ssga_installed_registry)
     assert all(f.description for f in SemanticConfig.model_fields.values())
 
 

@@ -8,8 +8,8 @@ from pydantic import ValidationError
 from ssga_parser_slico.plugin import SlicoConfig, SlicoParser
 
 from ssga_core import ConfigError, Pose, View
-from ssga_core.config import resolve_stage
-from ssga_core.plugins import get_plugin_manager
+from ssga_core import resolve_stage
+from ssga_core.testing import get_plugin_manager
 from ssga_core.testing import check_parser, check_parser_in_all_orders, make_view
 from ssga_core.testing.stages import ShiftWarp
 
@@ -183,10 +183,10 @@ def test_bad_config_fails_validation(params, message):
         SlicoConfig(**params)
 
 
-def test_config_resolves_presets_and_reports_bad_values():
-    stage = resolve_stage("parser", {"name": "slico", "preset": "coarse", "sigma": 1.0})
+def test_config_resolves_presets_and_reports_bad_values(ssga_installed_registry):
+    stage = resolve_stage("parser", {"name": "slico", "preset": "coarse", "sigma": 1.0}, ssga_installed_registry)
     assert stage.config == SlicoConfig(n_segments=25, min_region_px=640, sigma=1.0)
     with pytest.raises(ConfigError, match=r"parser\.n_segments: Input should be greater than or equal to 1"):
-        resolve_stage("parser", {"name": "slico", "n_segments": 0})
+        resolve_stage("parser", {"name": "slico", "n_segments": 0}, ssga_installed_registry)
     every_field = SlicoConfig.model_fields.values()
     assert all(f.description for f in every_field)

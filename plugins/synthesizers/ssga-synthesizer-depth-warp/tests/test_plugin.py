@@ -8,7 +8,7 @@ from pydantic import ValidationError
 from ssga_synthesizer_depth_warp.plugin import DepthWarp, DepthWarpConfig
 
 from ssga_core import Camera, InputError, Pose, View
-from ssga_core.plugins import get_plugin_manager
+from ssga_core.testing import get_plugin_manager
 from ssga_core.testing import check_synthesizer, check_synthesizer_in_all_orders, make_view
 
 

@@ -10,10 +10,10 @@ import pytest
 from ssga_workspace_folder.plugin import FolderConfig, FolderWorkspaceSource
 
 from ssga_core import InputError, Pose
-from ssga_core.dataset import build_dataset
-from ssga_core.io import depth_to_png16, write_json, write_png
-from ssga_core.protocol import ProtocolConfig
-from ssga_core.testing.stages import WallWorkspaceSource
+from ssga_bench import build_dataset
+from ssga_bench.io import depth_to_png16, write_json, write_png
+from ssga_bench import ProtocolConfig
+from ssga_bench.testing import WallWorkspaceSource
 
 
 def make_folder(root, n=400, seed=0):

@@ -7,8 +7,8 @@ import pytest
 from pydantic import ValidationError
 
 from ssga_core import Data
-from ssga_core.plugins import get_plugin_manager
-from ssga_core.workspace import Workspace
+from ssga_core.testing import get_plugin_manager
+from ssga_bench.workspace import Workspace
 from ssga_workspace_procedural.plugin import ProceduralConfig, ProceduralWorkspaceSource
 
 

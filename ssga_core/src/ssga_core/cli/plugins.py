@@ -9,28 +9,8 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
-from ssga_core.cli.main import command
-from ssga_core.plugins import Registry, default_registry
-
-
-def plugin_rows(registry: Registry) -> list[dict[str, Any]]:
-    """One row per registered stage implementation."""
-    return [
-        {
-            "distribution": entry.plugin.distribution,
-            "version": entry.plugin.version,
-            "entry_point": entry.plugin.name,
-            "kind": entry.kind,
-            "name": entry.name,
-            "abbrev": entry.cls.abbrev,
-            "class": f"{entry.cls.__module__}.{entry.cls.__qualname__}",
-            "consumes": sorted(str(d) for d in entry.cls.consumes),
-            "produces": sorted(str(d) for d in entry.cls.produces),
-            "presets": sorted(entry.cls.presets),
-            "config_schema": entry.cls.Config.model_json_schema(),
-        }
-        for entry in registry
-    ]
+from ssga_core.cli.main import command, current_registry
+from ssga_core.plugins import plugin_rows
 
 
 def _fields(schema: dict[str, Any]) -> str:
@@ -41,7 +21,7 @@ def _fields(schema: dict[str, Any]) -> str:
 @command(name="plugins")
 def plugins_cli(as_json: Annotated[bool, typer.Option("--json", help="Print JSON, with each config's full schema.")] = False) -> None:
     """List installed stage plugins: distribution, version, kind, name and config."""
-    registry = default_registry()
+    registry = current_registry()
     rows = plugin_rows(registry)
     if as_json:
         failures = [{"plugin": f.plugin.name, "distribution": f.plugin.distribution, "reason": f.reason} for f in registry.failures]

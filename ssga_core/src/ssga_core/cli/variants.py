@@ -1,4 +1,4 @@
-"""``ssga variants``: the valid orders, or the variants a config binds."""
+"""``ssga variants``: the valid orders, and the variants a config binds."""
 
 from __future__ import annotations
 
@@ -10,75 +10,55 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
-from ssga_core.cli.main import command
-from ssga_core.config import load_experiment
-from ssga_core.variants import STAGE_VERBS, all_orders, equivalents, parse_variant, requirements
-
-
-def order_rows() -> list[dict[str, Any]]:
-    """One row per valid order: its stages, whether the paper uses it, its needs, its equivalents."""
-    rows = []
-    for order in all_orders():
-        variant = parse_variant(order)
-        needs = {kind: sorted(str(d) for d in data) for kind, data in requirements(order).items() if data}
-        rows.append(
-            {
-                "order": order,
-                "stages": [STAGE_VERBS[s] for s in order],
-                "in_paper": variant.in_paper,
-                "query_path": variant.query_order,
-                "synthesizes": variant.synthesizes,
-                "needs": needs,
-                "equivalent_to": equivalents(order),
-            }
-        )
-    return rows
+from ssga_core.cli.main import command, current_registry
+from ssga_core.config import resolve_variants
+from ssga_core.kinds import PIPELINE_KIND_NAMES
+from ssga_core.variants import order_rows
 
 
 def config_rows(path: Path) -> list[dict[str, Any]]:
     """One row per variant a config binds: label, order and the plugin of each stage."""
-    experiment = load_experiment(path)
     return [
-        {
-            "label": rv.label,
-            "variant": str(rv.variant),
-            **{kind: rv.stages[kind].cls.name if kind in rv.stages else None for kind in ("parser", "descriptor", "synthesizer")},
-        }
-        for rv in experiment.variants
+        {"label": rv.label, "variant": str(rv.variant), **{kind: rv.stages[kind].name if kind in rv.stages else None for kind in PIPELINE_KIND_NAMES}}
+        for rv in resolve_variants(path, current_registry())
     ]
+
+
+def _print_orders(console: Console) -> None:
+    table = Table("order", "stages", "paper", "query", "needs", "same as", title="variant orders (any of them may take a preset number: SPD1, SPD2)")
+    for row in order_rows():
+        needs = "; ".join(f"{kind}: {', '.join(d)}" for kind, d in row["needs"].items()) or "-"
+        table.add_row(
+            row["order"], " → ".join(row["stages"]), "yes" if row["in_paper"] else "", row["query_path"], needs, ", ".join(row["equivalent_to"]) or "-"
+        )
+    console.print(table)
+
+
+def _print_config(console: Console, path: Path, rows: list[dict[str, Any]]) -> None:
+    table = Table("label", "variant", *PIPELINE_KIND_NAMES, title=f"variants in {path}")
+    for row in rows:
+        table.add_row(row["label"], row["variant"], *(row[k] or "-" for k in PIPELINE_KIND_NAMES))
+    console.print(table)
 
 
 @command(name="variants")
 def variants_cli(
-    list_orders: Annotated[bool, typer.Option("--list", "-l", help="List every valid order (the default).")] = False,
-    config: Annotated[Path | None, typer.Option("--config", "-c", help="Show the variants this config binds instead.")] = None,
-    as_json: Annotated[bool, typer.Option("--json", help="Print JSON instead of a table.")] = False,
+    list_orders: Annotated[bool, typer.Option("--list", "-l", help="List every valid order (what the command shows without --config).")] = False,
+    config: Annotated[Path | None, typer.Option("--config", "-c", help="List the variants this experiment config binds, with their plugins.")] = None,
+    as_json: Annotated[bool, typer.Option("--json", help="Print JSON instead of tables.")] = False,
 ) -> None:
-    """List the valid variant orders (and which the paper uses), or the variants a config binds."""
-    del list_orders  # listing is what the command does without --config
-    if config is not None:
-        rows = config_rows(config)
-        if as_json:
-            typer.echo(json.dumps(rows, indent=2))
-            return
-        table = Table("label", "variant", "parser", "descriptor", "synthesizer", title=f"variants in {config}")
-        for row in rows:
-            table.add_row(row["label"], row["variant"], *(row[k] or "-" for k in ("parser", "descriptor", "synthesizer")))
-        Console(width=120).print(table)
-        return
-    rows = order_rows()
+    """List the valid variant orders (and which the paper uses), or the variants a config binds, or both."""
+    show_orders = list_orders or config is None
+    orders = order_rows() if show_orders else None
+    bound = config_rows(config) if config is not None else None
     if as_json:
-        typer.echo(json.dumps(rows, indent=2))
+        # One document per request: the orders, the config's variants, or both under their names.
+        out: Any = orders if bound is None else bound if orders is None else {"orders": orders, "variants": bound}
+        typer.echo(json.dumps(out, indent=2))
         return
-    table = Table("order", "stages", "paper", "query", "needs", "same as", title="variant orders (any of them may take a preset number: SPD1, SPD2)")
-    for row in rows:
-        needs = "; ".join(f"{kind}: {', '.join(d)}" for kind, d in row["needs"].items()) or "-"
-        table.add_row(
-            row["order"],
-            " → ".join(row["stages"]),
-            "yes" if row["in_paper"] else "",
-            row["query_path"],
-            needs,
-            ", ".join(row["equivalent_to"]) or "-",
-        )
-    Console(width=140).print(table)
+    console = Console(width=140)
+    if orders is not None:
+        _print_orders(console)
+    if bound is not None:
+        assert config is not None
+        _print_config(console, config, bound)

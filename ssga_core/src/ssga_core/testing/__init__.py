@@ -32,7 +32,7 @@ from ssga_core.testing.contracts import (
     check_synthesizer,
     check_synthesizer_in_all_orders,
 )
-from ssga_core.testing.views import make_view
+from ssga_core.testing.views import make_panorama_view, make_view
 
 __all__ = [
     "FakeDistribution",
@@ -44,6 +44,8 @@ __all__ = [
     "check_parser_in_all_orders",
     "check_synthesizer",
     "check_synthesizer_in_all_orders",
+    "get_plugin_manager",
+    "make_panorama_view",
     "make_view",
 ]
 

@@ -14,9 +14,7 @@ from pydantic import Field
 from ssga_core import hookimpl
 from ssga_core.data import Data, LocalFeatures, Regions, Synthesis, View
 from ssga_core.geometry import Pose
-from ssga_core.stages import Descriptor, LocalDescriptor, Parser, RegionDescriptor, StageConfig, Synthesizer, WorkspaceSource
-from ssga_core.testing.views import make_panorama_view, make_view
-from ssga_core.workspace import FloorPlan, Workspace
+from ssga_core.stages import Descriptor, LocalDescriptor, Parser, RegionDescriptor, StageConfig, Synthesizer
 
 
 class StripesConfig(StageConfig):
@@ -121,36 +119,6 @@ class ShiftWarp(Synthesizer):
         return Synthesis(view=synthetic, target_uv=target_uv.astype(np.float32), visible=visible)
 
 
-class WallConfig(StageConfig):
-    size: float = Field(default=10.0, gt=1.0, description="Side of the square room, metres.")
-    seed: int = 0
-
-
-class WallWorkspaceSource(WorkspaceSource):
-    """An empty square room painted with vertical colour bands (:func:`make_panorama_view`)."""
-
-    name = "test-wall"
-    Config = WallConfig
-    produces = frozenset({Data.RGB, Data.DEPTH, Data.SEMANTIC})
-
-    def open(self) -> Workspace:
-        import shapely
-
-        half = self.config.size / 2
-        walls = shapely.box(-half - 0.1, -half - 0.1, half + 0.1, half + 0.1).difference(shapely.box(-half, -half, half, half))
-        plan = FloorPlan(free=shapely.box(-half + 0.3, -half + 0.3, half - 0.3, half - 0.3), occluders=walls)
-        return _WallWorkspace(f"test-wall-{self.config.seed}", make_view().camera, plan, self.config.seed)
-
-
-class _WallWorkspace:
-    def __init__(self, name: str, camera: object, floor_plan: FloorPlan, seed: int) -> None:
-        self.name, self.camera, self.floor_plan, self.seed = name, camera, floor_plan, seed
-
-    def render(self, pose: Pose) -> View:
-        return make_panorama_view(pose, seed=self.seed)
-
-
-
 # The module itself is a plugin registering every stand-in: register it on a fresh plugin
 # set in tests, or try the stand-ins from the command line with
 # SSGA_PLUGIN_MODULES=ssga_core.testing.stages.
@@ -169,8 +137,3 @@ def ssga_register_descriptors() -> list[type[Descriptor]]:
 @hookimpl
 def ssga_register_synthesizers() -> list[type[Synthesizer]]:
     return [ShiftWarp]
-
-
-@hookimpl
-def ssga_register_workspaces() -> list[type[WorkspaceSource]]:
-    return [WallWorkspaceSource]

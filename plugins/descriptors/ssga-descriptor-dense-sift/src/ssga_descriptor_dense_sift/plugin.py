@@ -5,7 +5,7 @@ conv5_3 cells (stride 16) are centred at ``39.5 + 16 j`` px, ``j = 0..11``, so t
 span 2.5/16 to 13.5/16 of each side. A dense-SIFT feature sits where a PNV patch
 would, so swapping one descriptor for the other changes only what describes the
 patches, not which node a patch belongs to. Everything after extraction (dictionary,
-reciprocal-rank votes, NBNN, pooling) is :class:`ssga_core.bow.BoWDescriptor`'s.
+reciprocal-rank votes, NBNN, pooling) is :class:`ssga_bench.bow.BoWDescriptor`'s.
 """
 
 from __future__ import annotations
@@ -18,7 +18,7 @@ import numpy as np
 from pydantic import Field
 
 from ssga_core import Descriptor, LocalFeatures, View, hookimpl
-from ssga_core.bow import BoWDescriptor, BoWDescriptorConfig
+from ssga_bench import BoWDescriptor, BoWDescriptorConfig
 
 _SIFT_SIGMA = 1.6
 """OpenCV SIFT's base blur; a keypoint of size ``s`` was detected at blur ``s / 2``."""

@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from ssga_core import Fuser, hookimpl
-from ssga_core.ranking import ranks
+from ssga_core import ranks
 
 
 class BordaCount(Fuser):

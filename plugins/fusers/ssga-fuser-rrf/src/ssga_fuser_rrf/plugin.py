@@ -12,7 +12,7 @@ import numpy as np
 from pydantic import Field
 
 from ssga_core import Fuser, StageConfig, hookimpl
-from ssga_core.ranking import reciprocal_ranks
+from ssga_core import reciprocal_ranks
 
 
 class RRFConfig(StageConfig):

@@ -15,8 +15,7 @@ from typing import Annotated, Literal
 import numpy as np
 from pydantic import Field
 
-from ssga_core import Data, InputError, Parser, Regions, StageConfig, View, hookimpl
-from ssga_core.data import boxes_from_labels
+from ssga_core import Data, InputError, Parser, Regions, StageConfig, View, boxes_from_labels, hookimpl
 
 
 class SemanticConfig(StageConfig):

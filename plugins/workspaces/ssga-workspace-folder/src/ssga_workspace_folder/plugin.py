@@ -1,7 +1,7 @@
 """Captured images with poses and a floor plan, run through the same benchmark protocol.
 
 The folder holds a ``captures.jsonl`` (one line per image) and a ``floorplan.json``
-(:meth:`ssga_core.workspace.FloorPlan.to_json`); see this package's README for the format.
+(:meth:`ssga_bench.workspace.FloorPlan.to_json`); see this package's README for the format.
 """
 
 from __future__ import annotations
@@ -15,8 +15,8 @@ import numpy as np
 from pydantic import Field
 
 from ssga_core import Camera, Data, InputError, Pose, StageConfig, View, WorkspaceSource, hookimpl
-from ssga_core.io import depth_from_png16, ids_from_png16, read_json, read_jsonl, read_png
-from ssga_core.workspace import FloorPlan
+from ssga_bench import depth_from_png16, ids_from_png16, read_json, read_jsonl, read_png
+from ssga_bench import FloorPlan
 
 
 class FolderConfig(StageConfig):
@@ -59,7 +59,7 @@ def parse_capture(row: dict[str, Any], root: Path, where: str, yaw_in_degrees: b
 
 
 class FolderWorkspace:
-    """A :class:`ssga_core.workspace.CapturedWorkspace` over the captures of one folder."""
+    """A :class:`ssga_bench.workspace.CapturedWorkspace` over the captures of one folder."""
 
     def __init__(self, name: str, camera: Camera, floor_plan: FloorPlan, captures: list[Capture]) -> None:
         self.name, self.camera, self.floor_plan = name, camera, floor_plan

@@ -6,7 +6,7 @@ face outwards (normals point out of solid walls and furniture, into the rooms). 
 second one is what tells "inside a thick wall" from "inside a room": from inside a
 solid, a horizontal ray sees the back of a surface.
 
-The JSON format is the core's (:meth:`ssga_core.workspace.FloorPlan.to_json`).
+The JSON format is the core's (:meth:`ssga_bench.workspace.FloorPlan.to_json`).
 """
 
 from __future__ import annotations
@@ -20,9 +20,9 @@ import shapely
 import trimesh
 from shapely.geometry.base import BaseGeometry
 
-from ssga_core.errors import InputError
-from ssga_core.io import read_json
-from ssga_core.workspace import FloorPlan
+from ssga_core import InputError
+from ssga_bench import read_json
+from ssga_bench import FloorPlan
 from ssga_workspace_mesh.meshdata import RayCaster, flatten_scene
 
 PROBE_DIRECTIONS = 16
@@ -185,7 +185,7 @@ def _polygonal(geom: BaseGeometry, min_area: float = 0.0) -> BaseGeometry:
 
 
 def load_floor_plan(path: str | Path) -> FloorPlan:
-    """Read a floor plan in the core's JSON format (:meth:`ssga_core.workspace.FloorPlan.to_json`).
+    """Read a floor plan in the core's JSON format (:meth:`ssga_bench.workspace.FloorPlan.to_json`).
 
     Raises:
         InputError: the file is missing, not JSON, or not lists of polygons; one line naming the file.

@@ -22,8 +22,8 @@ from typing import Any, Literal
 import numpy as np
 import trimesh
 
-from ssga_core.errors import InputError
-from ssga_core.io import atomic_write_bytes
+from ssga_core import InputError
+from ssga_bench import atomic_write_bytes
 from ssga_workspace_mesh.meshdata import geometry_ids
 
 Y_UP_TO_Z_UP = np.array(

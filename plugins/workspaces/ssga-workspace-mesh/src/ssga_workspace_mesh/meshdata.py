@@ -18,7 +18,7 @@ from embreex import rtcore_scene
 from embreex.mesh_construction import TriangleMesh
 from trimesh.visual.material import PBRMaterial, SimpleMaterial
 
-from ssga_core.errors import InputError
+from ssga_core import InputError
 
 Ids = Mapping[str, tuple[int, int]]
 """Geometry name -> ``(semantic_id, instance_id)``."""

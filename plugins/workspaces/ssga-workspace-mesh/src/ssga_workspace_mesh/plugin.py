@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING, Literal
 from pydantic import Field
 
 from ssga_core import Camera, Data, Pose, StageConfig, View, WorkspaceSource, hookimpl
-from ssga_core.workspace import FloorPlan, Workspace
+from ssga_bench import FloorPlan, Workspace
 
 if TYPE_CHECKING:
     from ssga_workspace_mesh.renderer import MeshRenderer
@@ -23,11 +23,11 @@ if TYPE_CHECKING:
 class MeshConfig(StageConfig):
     """Which mesh file, how to read it, and the camera its views are taken with."""
 
-    path: str = Field(description="The mesh file: .glb, .gltf or .obj (with its .mtl and textures beside it).")
+    path: Path = Field(description="The mesh file: .glb, .gltf or .obj (with its .mtl and textures beside it); relative to the config file.")
     up_axis: Literal["y", "z"] = Field(
         default="y", description="The file's up axis: 'y' for glTF/Habitat/HM3D files, 'z' for files already in ssga's frame."
     )
-    floor_plan: str | None = Field(
+    floor_plan: Path | None = Field(
         default=None,
         description="JSON floor plan (free and occluder polygons). If omitted: <mesh stem>.floorplan.json beside the mesh "
         "when there is one, else derived from the mesh.",
@@ -36,19 +36,20 @@ class MeshConfig(StageConfig):
     height: int = Field(default=256, gt=0, le=4096, description="Image height, pixels.")
     hfov_deg: float = Field(default=90.0, gt=0.0, lt=180.0, description="Horizontal field of view, degrees.")
     camera_height: float = Field(
-        default=1.5, gt=0.0, description="Camera height above the floor, metres (used to derive the floor plan)."
+        default=1.5, gt=0.0, description="Camera height above the floor, metres: where the protocol's viewpoints stand, and the floor plan's cut."
     )
     shading: bool = Field(default=True, description="Shade surfaces by their angle to a fixed light, so flat walls read.")
 
 
 @dataclass(frozen=True, eq=False)
 class MeshWorkspace:
-    """A mesh scene with its camera and floor plan (satisfies :class:`ssga_core.workspace.Workspace`)."""
+    """A mesh scene with its camera and floor plan (satisfies :class:`ssga_bench.workspace.Workspace`)."""
 
     name: str
     camera: Camera
     floor_plan: FloorPlan
     renderer: MeshRenderer
+    camera_height: float = 1.5
 
     def render(self, pose: Pose) -> View:
         return self.renderer.render(pose)
@@ -73,9 +74,9 @@ class MeshWorkspaceSource(WorkspaceSource):
         if config.floor_plan or plan_file.exists():
             plan = load_floor_plan(plan_file)
         else:
-            plan = floor_plan_from_mesh(scene, camera_height=config.camera_height, source=config.path)
+            plan = floor_plan_from_mesh(scene, camera_height=config.camera_height, source=str(config.path))
         renderer = MeshRenderer(scene, camera, ids=ids, shading=config.shading)
-        return MeshWorkspace(name=Path(config.path).stem, camera=camera, floor_plan=plan, renderer=renderer)
+        return MeshWorkspace(name=config.path.stem, camera=camera, floor_plan=plan, renderer=renderer, camera_height=config.camera_height)
 
 
 @hookimpl

@@ -22,8 +22,8 @@ import cv2
 import numpy as np
 import trimesh
 
-from ssga_core.data import View
-from ssga_core.geometry import Camera, Pose
+from ssga_core import View
+from ssga_core import Camera, Pose
 from ssga_workspace_mesh.atlas import TextureAtlas
 from ssga_workspace_mesh.meshdata import FlatMesh, RayCaster, flatten_scene
 

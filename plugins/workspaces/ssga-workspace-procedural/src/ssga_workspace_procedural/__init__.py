@@ -4,12 +4,30 @@
 textured, semantically labelled multi-room home from a seed;
 :func:`~ssga_workspace_procedural.export.export_glb` writes it for Habitat-Sim or any
 glTF viewer; the ``procedural`` workspace source (:mod:`.plugin`) renders it.
+
+The public names are imported on first use, so that loading the plugin module (as
+every ``ssga`` command does) does not import trimesh and scikit-image.
 """
 
 from __future__ import annotations
 
-from ssga_workspace_procedural.categories import CATEGORIES, semantic_id
-from ssga_workspace_procedural.export import export_glb
-from ssga_workspace_procedural.generator import Home, HomeConfig, HomeObject, generate_home
+import importlib
+from typing import Any
 
-__all__ = ["CATEGORIES", "Home", "HomeConfig", "HomeObject", "export_glb", "generate_home", "semantic_id"]
+_EXPORTS = {
+    "CATEGORIES": "ssga_workspace_procedural.categories",
+    "semantic_id": "ssga_workspace_procedural.categories",
+    "export_glb": "ssga_workspace_procedural.export",
+    "Home": "ssga_workspace_procedural.generator",
+    "HomeConfig": "ssga_workspace_procedural.generator",
+    "HomeObject": "ssga_workspace_procedural.generator",
+    "generate_home": "ssga_workspace_procedural.generator",
+}
+
+__all__ = sorted(_EXPORTS)
+
+
+def __getattr__(name: str) -> Any:
+    if name not in _EXPORTS:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    return getattr(importlib.import_module(_EXPORTS[name]), name)

@@ -7,7 +7,7 @@
 * ``home.semantic.json``: ``{"categories": {name: id}, "geometries": {geometry name:
   {"category", "semantic_id", "instance_id"}}}``;
 * ``home.floorplan.json``: the floor plan in the core's format
-  (:meth:`ssga_core.workspace.FloorPlan.to_json`).
+  (:meth:`ssga_bench.workspace.FloorPlan.to_json`).
 
 These are what the mesh workspace source reads (``ssga_workspace_mesh.load_mesh_scene``
 and its floor-plan lookup beside the mesh), so an exported home opens as a ``mesh``
@@ -19,7 +19,7 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-from ssga_core.io import write_json
+from ssga_bench import write_json
 from ssga_workspace_mesh.loading import floor_plan_path, save_mesh_scene, sidecar_path
 from ssga_workspace_procedural.categories import CATEGORIES
 from ssga_workspace_procedural.generator import Home

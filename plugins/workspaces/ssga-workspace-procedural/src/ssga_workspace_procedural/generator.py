@@ -24,7 +24,7 @@ from shapely.geometry import Polygon
 from shapely.geometry.base import BaseGeometry
 
 from ssga_core import InputError, Pose
-from ssga_core.workspace import FloorPlan
+from ssga_bench import FloorPlan
 from ssga_workspace_procedural import textures
 from ssga_workspace_procedural.arrangements import RECIPES, Arrangement, Placement, turn, turned_size
 from ssga_workspace_procedural.categories import semantic_id

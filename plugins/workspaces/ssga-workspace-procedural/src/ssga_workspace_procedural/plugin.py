@@ -11,7 +11,7 @@ from __future__ import annotations
 from pydantic import Field, model_validator
 
 from ssga_core import Camera, Data, StageConfig, WorkspaceSource, hookimpl
-from ssga_core.workspace import Workspace
+from ssga_bench import Workspace
 
 OCCLUDER_HEIGHT = 1.2
 """Furniture at least this tall (or at least the camera's height, if lower) blocks the line of sight."""
@@ -70,7 +70,7 @@ class ProceduralWorkspaceSource(WorkspaceSource):
             )
         )
         camera = Camera(width=c.width, height=c.height, hfov_deg=c.hfov_deg)
-        return ProceduralWorkspace(home, camera, shading=c.shading)
+        return ProceduralWorkspace(home, camera, camera_height=c.camera_height, shading=c.shading)
 
 
 @hookimpl

@@ -8,7 +8,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from ssga_core import Camera, Pose, View
-from ssga_core.workspace import FloorPlan
+from ssga_bench import FloorPlan
 from ssga_workspace_procedural.generator import Home
 
 if TYPE_CHECKING:
@@ -16,15 +16,16 @@ if TYPE_CHECKING:
 
 
 class ProceduralWorkspace:
-    """A procedural home seen through ``camera`` (satisfies :class:`ssga_core.workspace.Workspace`).
+    """A procedural home seen through ``camera`` (satisfies :class:`ssga_bench.workspace.Workspace`).
 
     The renderer (an Embree scene over every triangle) is built on the first
     :meth:`render`, so opening a workspace only to read its floor plan stays cheap.
     """
 
-    def __init__(self, home: Home, camera: Camera, *, shading: bool = True) -> None:
+    def __init__(self, home: Home, camera: Camera, *, camera_height: float = 1.5, shading: bool = True) -> None:
         self.home = home
         self.camera = camera
+        self.camera_height = camera_height
         self.shading = shading
         self.name = f"procedural-{home.config.seed}"
 

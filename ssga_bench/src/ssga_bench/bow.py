@@ -75,7 +75,7 @@ class NotFittedError(SsgaError, RuntimeError):
 
 
 class BoWConfig(StageConfig):
-    """How local features become bag-of-words node features (see :mod:`ssga_core.bow`)."""
+    """How local features become bag-of-words node features (see :mod:`ssga_bench.bow`)."""
 
     k: int = Field(default=100, ge=2, le=4096, description="Dictionary size: the number of visual words (paper: 100).")
     similarity: Literal["nbnn", "centroid"] = Field(

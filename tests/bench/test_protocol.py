@@ -9,9 +9,9 @@ import pytest
 import shapely
 
 from ssga_core import Camera, InputError
-from ssga_core.protocol import Grid, Protocol, ProtocolConfig, level_of
-from ssga_core.visibility import view_overlap
-from ssga_core.workspace import FloorPlan
+from ssga_bench.protocol import Grid, Protocol, ProtocolConfig, level_of
+from ssga_bench.visibility import view_overlap
+from ssga_bench.workspace import FloorPlan
 
 
 def two_rooms() -> FloorPlan:

@@ -8,7 +8,7 @@ import io
 import numpy as np
 import pytest
 
-from ssga_core.evaluation import Report, metrics, random_metrics, truth_ranks
+from ssga_bench.evaluation import Report, metrics, random_metrics, truth_ranks
 
 
 def test_ranks_and_metrics_by_hand():

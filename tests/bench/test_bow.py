@@ -7,7 +7,7 @@ import pytest
 from pydantic import ValidationError
 
 from ssga_core import InputError, LocalFeatures, View
-from ssga_core.bow import (
+from ssga_bench.bow import (
     BagOfWords,
     BoWConfig,
     BoWDescriptor,

@@ -9,19 +9,22 @@ few hundred nodes, where dense products beat sparse ones on a CPU.
 
 from __future__ import annotations
 
-import os
-import tempfile
+import io
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import torch
 from torch import nn
 
-from ssga_core.config import TrainingConfig
+from ssga_bench.io import atomic_write_bytes
 from ssga_core.data import SceneGraph
 from ssga_core.errors import CheckpointError
+
+if TYPE_CHECKING:  # the model takes any config with these fields; it does not depend on the config module
+    from ssga_bench.config import TrainingConfig
 
 
 @dataclass(frozen=True)
@@ -173,16 +176,9 @@ def train_gcn(
 
 def save_gcn(model: GCN, path: str | Path) -> None:
     """Save ``{"hparams", "state_dict"}`` atomically."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    os.close(fd)
-    try:
-        torch.save({"hparams": model.hparams, "state_dict": model.state_dict()}, tmp)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    buffer = io.BytesIO()
+    torch.save({"hparams": model.hparams, "state_dict": model.state_dict()}, buffer)
+    atomic_write_bytes(path, buffer.getvalue())
 
 
 def load_gcn(path: str | Path) -> GCN:

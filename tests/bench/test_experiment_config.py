@@ -7,7 +7,8 @@ import textwrap
 import pytest
 
 from ssga_core import ConfigError, SsgaError
-from ssga_core.config import format_loc, load_experiment, validate_experiment
+from ssga_bench.config import load_experiment, validate_experiment
+from ssga_core.config import format_loc
 
 BASE = {
     "workspace": {"name": "test-wall"},
@@ -19,6 +20,7 @@ BASE = {
 @pytest.fixture
 def registry(ssga_plugin_set):
     from ssga_core import Fuser, hookimpl
+    from ssga_bench import testing as stand_in_workspaces
     from ssga_core.testing import stages as stand_in_stages
 
     class TestFuser(Fuser):
@@ -33,6 +35,7 @@ def registry(ssga_plugin_set):
             return [TestFuser]
 
     ssga_plugin_set.register(stand_in_stages, "stand-ins")
+    ssga_plugin_set.register(stand_in_workspaces, "stand-in-workspaces")
     ssga_plugin_set.register(Fusers(), "fusers")
     return ssga_plugin_set.registry()
 
@@ -102,8 +105,8 @@ def test_shape_errors_come_from_step_one_with_paths(registry):
     with pytest.raises(ConfigError) as info:
         validate_experiment({"workspace": {}, "variants": [], "training": {"epochs": -1, "lr": "fast"}, "extra": 1}, registry)
     assert info.value.problems == [
-        "workspace.name: Field required",
         "variants: List should have at least 1 item after validation, not 0",
+        "workspace.name: Field required",
         "training.epochs: Input should be greater than 0",
         "training.lr: Input should be a valid number, unable to parse string as a number",
         "extra: unknown key (misspelled?)",
@@ -135,7 +138,7 @@ def test_presets(registry, monkeypatch):
 
 def test_views_that_lack_what_a_stage_needs(registry, monkeypatch):
     from ssga_core import Data
-    from ssga_core.testing.stages import WallWorkspaceSource
+    from ssga_bench.testing import WallWorkspaceSource
 
     monkeypatch.setattr(WallWorkspaceSource, "produces", frozenset({Data.RGB}))
     with pytest.raises(ConfigError, match=r"variants\[0\]: SD: synthesizer 'test-shift' needs depth, which the real view does not carry"):
@@ -177,7 +180,7 @@ def test_relative_paths_in_stage_parameters_follow_the_config_file(tmp_path, reg
     from pathlib import Path
 
     from ssga_core import StageConfig, hookimpl
-    from ssga_core.testing.stages import WallWorkspaceSource
+    from ssga_bench.testing import WallWorkspaceSource
 
     class MeshConfig(StageConfig):
         mesh: Path

@@ -18,21 +18,27 @@ as an oracle for judging synthesis, and never used for training).
 
 Building is resumable: an interrupted build keeps its plan and every view already
 written (each file appears atomically), and the next build renders only what is missing.
+A finished dataset is only read when it is reused, so it may be read-only. Replacing
+a dataset (``overwrite``) deletes only the files ssga wrote there, never anything else
+the folder holds.
 """
 
 from __future__ import annotations
 
-import shutil
+import hashlib
+import json
 from collections.abc import Callable
 from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from ssga_core.config import ResolvedStage
 from ssga_core.data import View
-from ssga_core.errors import InputError
+from ssga_core.errors import InputError, SsgaError
 from ssga_core.geometry import Camera, Pose
-from ssga_core.io import (
+from ssga_bench.io import (
     depth_from_png16,
     depth_to_png16,
     ids_from_png16,
@@ -44,11 +50,13 @@ from ssga_core.io import (
     write_jsonl,
     write_png,
 )
-from ssga_core.protocol import Grid, Plan, Protocol, ProtocolConfig, Sample
-from ssga_core.workspace import AnyWorkspace, FloorPlan, Workspace
+from ssga_bench.protocol import Grid, Plan, Protocol, ProtocolConfig, Sample
+from ssga_bench.workspace import AnyWorkspace, FloorPlan, Workspace
 
 FORMAT = 1
 CHANNELS = ("rgb", "depth", "semantic", "instance")
+RECORDS = ("manifest.jsonl", "plan.json", "floorplan.json", "dataset.json")
+"""The dataset's own files, in the order a replaced dataset's are deleted (the header last)."""
 
 
 def sample_record(sample: Sample) -> dict[str, Any]:
@@ -77,38 +85,64 @@ def _header(workspace: AnyWorkspace, source: dict[str, Any], protocol: ProtocolC
     }
 
 
+def build_workspace(
+    source: ResolvedStage,
+    protocol: ProtocolConfig,
+    *,
+    out: Path | None = None,
+    overwrite: bool = False,
+    progress: Callable[[str, int, int], None] | None = None,
+) -> Dataset:
+    """Open a workspace source and build its benchmark dataset (see :func:`build_dataset`).
+
+    Args:
+        source: the resolved workspace source (from a config, or from command-line options).
+        out: the dataset folder; default ``runs/workspaces/<workspace>-<settings hash>``,
+            so experiments that differ only in their stages share the rendered workspace.
+    """
+    workspace = source.create().open()
+    record = {"name": source.name, **source.config.model_dump(mode="json")}
+    if out is None:
+        digest = hashlib.blake2b(json.dumps([record, protocol.model_dump(mode="json")], sort_keys=True).encode(), digest_size=4)
+        out = Path("runs") / "workspaces" / f"{workspace.name}-{digest.hexdigest()}"
+    return build_dataset(workspace, out, source=record, protocol=protocol, overwrite=overwrite, progress=progress)
+
+
 def build_dataset(
     workspace: AnyWorkspace,
     out: str | Path,
     *,
     source: dict[str, Any],
     protocol: ProtocolConfig,
-    height: float = 1.5,
     overwrite: bool = False,
     progress: Callable[[str, int, int], None] | None = None,
 ) -> Dataset:
     """Plan and render a benchmark workspace into ``out`` (resuming a build left unfinished).
 
     Args:
-        workspace: the opened workspace: rendered at the plan's poses, or, if it is a
-            captured workspace, its captures selected by the protocol and copied.
+        workspace: the opened workspace: rendered at the plan's poses (at its camera
+            height), or, if it is a captured workspace, its captures selected by the
+            protocol and copied.
         out: the dataset folder.
         source: the workspace source's name and config, recorded so a resumed build
             can refuse a folder that holds another workspace.
         protocol: the protocol's config.
-        height: camera height of every viewpoint.
-        overwrite: delete what ``out`` holds if it was built differently.
+        overwrite: replace what ssga wrote in ``out`` if it was built differently.
         progress: called with ``(phase, done, total)``; phases ``"plan"`` and ``"render"``.
     """
     out = Path(out)
+    if out.exists() and not out.is_dir():
+        raise InputError(f"{out}: is a file; the dataset needs a folder")
     header = _header(workspace, source, protocol)
     if (out / "dataset.json").exists():
         old = read_json(out / "dataset.json")
+        if old == header and (out / "manifest.jsonl").exists():
+            return Dataset.open(out)  # finished: reused as it is, without writing (it may be read-only)
         if old != header:
             if not overwrite:
-                changed = sorted(k for k in header if old.get(k) != header[k])
+                changed = sorted(k for k in header if not isinstance(old, dict) or old.get(k) != header[k])
                 raise InputError(f"{out}: holds a dataset built with other settings ({', '.join(changed)}); use another folder or --overwrite")
-            shutil.rmtree(out)
+            remove_dataset(out)
     write_json(out / "dataset.json", header)
     write_json(out / "floorplan.json", workspace.floor_plan.to_json())
 
@@ -121,7 +155,7 @@ def build_dataset(
             plan = protocol_run.select(workspace.name, workspace.captures)
         else:
             report = (lambda done, total: progress("plan", done, total)) if progress else None
-            plan = protocol_run.plan(workspace.name, height, report)
+            plan = protocol_run.plan(workspace.name, workspace.camera_height, report)
         write_json(out / "plan.json", {"grid": asdict(plan.grid), "cells": list(plan.cells), "samples": [sample_record(s) for s in plan.samples]})
 
     # A captured workspace cannot show its synthesis targets: they have no image.
@@ -134,6 +168,29 @@ def build_dataset(
             progress("render" if not captured else "copy", done, len(to_write))
     write_jsonl(out / "manifest.jsonl", (_manifest_row(out, s) for s in plan.samples))
     return Dataset.open(out)
+
+
+def remove_dataset(out: Path) -> None:
+    """Delete what ssga wrote in ``out``: each view's files of its plan, then its records.
+
+    Anything else in the folder (the user's notes, other data) stays; folders are
+    removed only if that leaves them empty.
+    """
+    try:
+        ids = [r["id"] for r in read_json(out / "plan.json")["samples"]] if (out / "plan.json").exists() else []
+    except (SsgaError, KeyError, TypeError):
+        raise InputError(f"{out / 'plan.json'}: damaged, so which views ssga wrote is unknown; delete the folder yourself") from None
+    try:
+        for channel in CHANNELS:
+            for sample_id in ids:
+                (out / channel / f"{sample_id}.png").unlink(missing_ok=True)
+            folder = out / channel
+            if folder.is_dir() and not any(folder.iterdir()):
+                folder.rmdir()
+        for name in RECORDS:
+            (out / name).unlink(missing_ok=True)
+    except OSError as exc:
+        raise InputError(f"{exc.filename or out}: cannot delete the old dataset: {exc.strerror}") from None
 
 
 def _write_view(view: View, out: Path, sample_id: str) -> None:

@@ -2,13 +2,18 @@
 
 Every output goes to a temporary file beside its destination and is renamed into
 place, so an interrupted run never leaves a half-written file that a resumed run
-would mistake for a finished one.
+would mistake for a finished one. A file that cannot be written (a read-only folder,
+a full disk, a path through a file) is an :class:`OutputError` naming the path, with
+nothing left behind; files get the permissions the user's umask gives, as any
+program's do (a temporary file alone would be private, 0600).
 """
 
 from __future__ import annotations
 
+import io
 import json
 import os
+import sys
 import tempfile
 from collections.abc import Iterable, Iterator
 from pathlib import Path
@@ -17,20 +22,92 @@ from typing import Any
 import cv2
 import numpy as np
 
-from ssga_core.errors import InputError
+from ssga_core.errors import InputError, SsgaError
+
+
+class OutputError(SsgaError, OSError):
+    """A file or folder ssga cannot write; the message names it and says why."""
+
+
+def warn(message: str) -> None:
+    """Tell the user about something ssga handled (a damaged file recomputed), on stderr."""
+    print(f"warning: {message}", file=sys.stderr)
+
+
+def _file_mode() -> int:
+    # The umask can only be read by setting it; set it back at once.
+    umask = os.umask(0o022)
+    os.umask(umask)
+    return 0o666 & ~umask
+
+
+def _why(exc: OSError) -> str:
+    return exc.strerror or type(exc).__name__
+
+
+def make_folder(path: str | Path) -> Path:
+    """``path`` as a folder, created with its parents if needed; one-line error if it cannot be."""
+    path = Path(path)
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except FileExistsError:
+        raise OutputError(f"{path}: cannot create the folder: a file is in the way") from None
+    except OSError as exc:
+        raise OutputError(f"{path}: cannot create the folder: {_why(exc)}") from None
+    if not path.is_dir():
+        raise OutputError(f"{path}: expected a folder, found a file")
+    return path
+
+
+def writable_folder(path: str | Path) -> Path:
+    """:func:`make_folder`, and checked writable now rather than after an hour of work."""
+    path = make_folder(path)
+    try:
+        with tempfile.TemporaryFile(dir=path):
+            pass
+    except OSError as exc:
+        raise OutputError(f"{path}: cannot write in this folder: {_why(exc)}") from None
+    return path
 
 
 def atomic_write_bytes(path: str | Path, data: bytes) -> None:
+    """Write ``data`` to ``path`` whole or not at all."""
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    make_folder(path.parent)
+    try:
+        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    except OSError as exc:
+        raise OutputError(f"{path}: cannot write: {_why(exc)}") from None
     try:
         with os.fdopen(fd, "wb") as f:
             f.write(data)
+        os.chmod(tmp, _file_mode())
         os.replace(tmp, path)
+    except OSError as exc:
+        Path(tmp).unlink(missing_ok=True)
+        raise OutputError(f"{path}: cannot write: {_why(exc)}") from None
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
+
+
+def npy_bytes(array: np.ndarray) -> bytes:
+    out = io.BytesIO()
+    np.save(out, array)
+    return out.getvalue()
+
+
+def load_npy(path: str | Path, shape: tuple[int, ...], *, what: str) -> np.ndarray | None:
+    """A saved array of ``shape`` with finite values, or None with a warning if the file is damaged."""
+    try:
+        array = np.load(path, allow_pickle=False)
+    except (OSError, ValueError, EOFError) as exc:
+        warn(f"{path}: damaged {what} ({' '.join(str(exc).split())[:120]}); computing them again")
+        return None
+    if array.shape != shape or not np.isfinite(array).all():
+        warn(f"{path}: {what} of shape {array.shape}, expected {shape} and finite; computing them again")
+        return None
+    return array
 
 
 def write_json(path: str | Path, obj: Any) -> None:

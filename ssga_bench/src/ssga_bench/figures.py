@@ -7,13 +7,16 @@ from __future__ import annotations
 
 import colorsys
 import math
+from pathlib import Path
 
 import cv2
 import numpy as np
 import shapely
 
-from ssga_core.dataset import Dataset
-from ssga_core.protocol import Sample
+from ssga_core.errors import InputError
+from ssga_bench.dataset import Dataset
+from ssga_bench.io import write_png
+from ssga_bench.protocol import Sample
 
 LEVEL_COLOURS = {1: (46, 160, 67), 2: (230, 150, 20), 3: (210, 50, 50)}  # RGB: green, orange, red
 
@@ -102,3 +105,19 @@ def contact_sheet(dataset: Dataset, per_level: int = 4, thumb: int = 128) -> np.
             cv2.putText(sheet, caption, (x + 3, y + 14), cv2.FONT_HERSHEY_SIMPLEX, 0.4, (255, 255, 255), 2, cv2.LINE_AA)
             cv2.putText(sheet, caption, (x + 3, y + 14), cv2.FONT_HERSHEY_SIMPLEX, 0.4, (0, 0, 0), 1, cv2.LINE_AA)
     return sheet
+
+
+def draw_workspace(*, dataset: Dataset, colour_by: str = "class", out: Path | None = None) -> tuple[Path, Path]:
+    """Write the bird's-eye plan and the contact sheet of a dataset; returns their paths.
+
+    Args:
+        colour_by: colour test cameras by ``"class"`` or ``"level"``.
+        out: folder for the pictures [default: the dataset folder].
+    """
+    if colour_by not in ("class", "level"):
+        raise InputError(f"--by {colour_by!r}: expected 'class' or 'level'")
+    out = out or dataset.root
+    plan_png, sheet_png = out / f"birdseye-by-{colour_by}.png", out / "contact-sheet.png"
+    write_png(plan_png, birdseye(dataset, colour_by=colour_by))
+    write_png(sheet_png, contact_sheet(dataset))
+    return plan_png, sheet_png

@@ -7,8 +7,8 @@ import pytest
 import torch
 
 from ssga_core import CheckpointError, SceneGraph
-from ssga_core.config import TrainingConfig
-from ssga_core.gcn import GraphBatch, load_gcn, save_gcn, train_gcn, validation_split
+from ssga_bench.config import TrainingConfig
+from ssga_bench.gcn import GraphBatch, load_gcn, save_gcn, train_gcn, validation_split
 from ssga_core.geometry import Camera
 from ssga_core.graph import assemble
 
@@ -90,7 +90,7 @@ def test_checkpoints_round_trip_and_bad_ones_are_reported(tmp_path):
 def test_weighted_readout_pools_by_node_weight():
     import torch
 
-    from ssga_core.gcn import GCN
+    from ssga_bench.gcn import GCN
 
     g = SceneGraph(
         boxes=np.zeros((3, 4), np.float32), features=np.array([[1.0], [0.0], [0.0]], np.float32),

@@ -9,7 +9,7 @@ import pytest
 import shapely
 
 from ssga_core import Pose
-from ssga_core.visibility import cast_rays, occluder_segments, sees, view_overlap, visibility_polygon
+from ssga_bench.visibility import cast_rays, occluder_segments, sees, view_overlap, visibility_polygon
 
 # A wall 0.1 m thick along x = 3 .. 3.1, from y = -10 to 10.
 WALL = shapely.box(3.0, -10.0, 3.1, 10.0)

@@ -112,7 +112,7 @@ class CapturedWorkspace(Protocol):
     """A set of views captured by a robot or exported from a simulator; it cannot render new poses.
 
     The benchmark protocol selects its training and test views among the captures
-    instead of sampling poses (:meth:`ssga_core.protocol.Protocol.select`).
+    instead of sampling poses (:meth:`ssga_bench.protocol.Protocol.select`).
     """
 
     name: str
@@ -133,6 +133,8 @@ class Workspace(Protocol):
     name: str
     camera: Camera
     floor_plan: FloorPlan
+    camera_height: float
+    """Height above the floor of the robot's camera: the protocol's viewpoints stand there."""
 
     def render(self, pose: Pose) -> View:
         """The view from ``pose`` (RGB, and depth and semantic ids if the source has them)."""

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import hashlib
 import io
+import zipfile
 from collections.abc import Callable
 from pathlib import Path
 from typing import TypeVar
@@ -18,7 +19,7 @@ from typing import TypeVar
 import numpy as np
 
 from ssga_core.data import LocalFeatures, Regions, View
-from ssga_core.io import atomic_write_bytes
+from ssga_bench.io import atomic_write_bytes, warn
 from ssga_core.stages import LocalDescriptor, Parser, Stage
 
 T = TypeVar("T")
@@ -53,8 +54,12 @@ class FeatureCache:
         if self.root is not None:
             path = self.root / key[0] / f"{key[1]}.npz"
             if path.exists():
-                with np.load(path) as data:
-                    arrays = {k: data[k] for k in data.files}
+                try:
+                    with np.load(path, allow_pickle=False) as data:
+                        arrays = {k: data[k] for k in data.files}
+                except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
+                    warn(f"{path}: damaged cache entry ({' '.join(str(exc).split())[:120]}); computing it again")
+                    return key, None
                 self._memory[key] = arrays
                 return key, arrays
         return key, None

@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 
 from ssga_core import InputError
-from ssga_core.dataset import Dataset, build_dataset
-from ssga_core.protocol import ProtocolConfig
-from ssga_core.testing.stages import WallWorkspaceSource
+from ssga_bench.dataset import Dataset, build_dataset
+from ssga_bench.protocol import ProtocolConfig
+from ssga_bench.testing import WallWorkspaceSource
 
 SMALL = ProtocolConfig(cells=2, test_per_class=1, seed=3)
 
@@ -19,6 +19,7 @@ class CountingWorkspace:
     def __init__(self, fail_after: int | None = None) -> None:
         self.inner = WallWorkspaceSource().open()
         self.name, self.camera, self.floor_plan = self.inner.name, self.inner.camera, self.inner.floor_plan
+        self.camera_height = self.inner.camera_height
         self.renders, self.fail_after = 0, fail_after
 
     def render(self, pose):

@@ -6,7 +6,7 @@ Definitions (the paper leaves the last three open; these are ssga's):
   (``cell_size``, 2 m), aligned to multiples of the cell size.
 * **Which cell a view belongs to.** A view belongs to a cell whose centroid lies in
   its visibility cone (the field-of-view wedge, cut by occluders, up to
-  ``max_range``: :mod:`ssga_core.visibility`); if several do, to the one whose
+  ``max_range``: :mod:`ssga_bench.visibility`); if several do, to the one whose
   centroid is nearest the viewpoint. A view whose cone holds no centroid belongs to
   no cell.
 * **Place classes.** Each cell has ``orientations`` (12) classes, by the view's
@@ -41,36 +41,51 @@ from typing import Literal
 
 import numpy as np
 import shapely
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 from ssga_core.errors import InputError
 from ssga_core.geometry import Camera, Pose
-from ssga_core.visibility import cast_rays, occluder_segments, sees, view_overlap, visibility_polygon
-from ssga_core.workspace import FloorPlan
+from ssga_bench.visibility import cast_rays, occluder_segments, sees, view_overlap, visibility_polygon
+from ssga_bench.workspace import FloorPlan
 
 Split = Literal["train", "target", "test"]
 
 
 class ProtocolConfig(BaseModel):
-    """Cells, classes, sampling and difficulty levels of the benchmark."""
+    """Cells, classes, sampling and difficulty levels of the benchmark.
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    Every value is bounded to what a build can do (a 1 nm cell or an infinite radius
+    would validate and then never finish), and non-finite numbers are refused.
+    """
 
-    cell_size: float = Field(default=2.0, gt=0.0, description="Side of a location cell, metres.")
-    cells: int = Field(default=10, ge=1, description="Location cells drawn at random.")
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
+
+    cell_size: float = Field(default=2.0, ge=0.1, le=100.0, description="Side of a location cell, metres.")
+    cells: int = Field(default=10, ge=1, le=1000, description="Location cells drawn at random.")
     orientations: int = Field(default=12, ge=1, le=360, description="Heading classes per cell.")
     test_per_class: int = Field(default=20, ge=1, le=100_000, description="Test views per class (the paper: 1500).")
-    test_radius: float = Field(default=3.0, gt=0.0, description="Test cameras stand within this distance of their cell's centroid, metres.")
-    viewpoint_distance: float = Field(default=1.0, gt=0.0, description="Canonical viewpoints stand this far behind the cell centroid, metres.")
-    max_range: float = Field(default=10.0, gt=0.0, description="Visibility cones end here, metres.")
-    rays: int = Field(default=121, ge=3, description="Rays cast per visibility cone.")
+    test_radius: float = Field(
+        default=3.0, gt=0.0, le=100.0, description="Test cameras stand within this distance of their cell's centroid, metres."
+    )
+    viewpoint_distance: float = Field(
+        default=1.0, gt=0.0, le=100.0, description="Canonical viewpoints stand this far behind the cell centroid, metres."
+    )
+    max_range: float = Field(default=10.0, gt=0.0, le=1000.0, description="Visibility cones end here, metres.")
+    rays: int = Field(default=121, ge=3, le=10_000, description="Rays cast per visibility cone.")
     level_bounds: tuple[float, float] = Field(default=(60.0, 30.0), description="VO above the first is L1, above the second L2, else L3.")
     level_reference: Literal["class", "landmark"] = Field(
         default="class",
         description="Levels from the VO with the class's training viewpoint ('class') or with the cell's one real image ('landmark').",
     )
-    max_candidates: int = Field(default=200, ge=1, description="Candidate poses tried per test view wanted before giving up.")
-    seed: int = Field(default=0, description="Seed of every random draw of the protocol.")
+    max_candidates: int = Field(default=200, ge=1, le=100_000, description="Candidate poses tried per test view wanted before giving up.")
+    seed: int = Field(default=0, ge=0, lt=2**32, description="Seed of every random draw of the protocol.")
+
+    @field_validator("level_bounds")
+    @classmethod
+    def _ordered_percentages(cls, bounds: tuple[float, float]) -> tuple[float, float]:
+        if not 0.0 <= bounds[1] <= bounds[0] <= 100.0:
+            raise ValueError(f"expected [L1 bound, L2 bound] with 100 >= L1 bound >= L2 bound >= 0, got {list(bounds)}")
+        return bounds
 
 
 @dataclass(frozen=True)

@@ -7,11 +7,11 @@ import math
 import numpy as np
 import pytest
 
-from ssga_core.config import TrainingConfig, validate_experiment
-from ssga_core.dataset import build_dataset
-from ssga_core.experiment import run_experiment, training_poses
-from ssga_core.protocol import ProtocolConfig
-from ssga_core.testing.stages import WallWorkspaceSource
+from ssga_bench.config import TrainingConfig, validate_experiment
+from ssga_bench.dataset import build_dataset
+from ssga_bench.experiment import Timings, Views, run_experiment, training_cells
+from ssga_bench.protocol import ProtocolConfig
+from ssga_bench.testing import WallWorkspaceSource
 
 
 @pytest.fixture(scope="module")
@@ -35,25 +35,34 @@ def experiment(stand_in_registry, **training):
 
 @pytest.fixture
 def stand_in_registry(ssga_plugin_set):
+    from ssga_bench import testing
     from ssga_core.testing import stages
 
     ssga_plugin_set.load_entry_points()  # the installed fusers
     ssga_plugin_set.register(stages, "stand-ins")
+    ssga_plugin_set.register(testing, "stand-in-workspaces")
     return ssga_plugin_set.registry()
 
 
 def test_training_poses_cover_every_class_with_jittered_copies(dataset):
     config = TrainingConfig(synthetic_per_class=3, jitter_m=0.2, jitter_deg=4)
-    poses = training_poses(dataset, config)
-    per_class = np.bincount([place for _, _, place in poses], minlength=dataset.num_classes)
-    reals = {s.place for s in dataset.split("train")}
-    assert all(per_class[p] == (2 if p in reals else 3) for p in range(dataset.num_classes))
+    cells = training_cells(dataset, config, Views(dataset, Timings()))
+    reals = {s.place: s for s in dataset.split("train")}
+    assert [c.real_class for c in cells] == list(reals)
     viewpoint = {s.place: s.pose for s in dataset.split("train") + dataset.split("target")}
-    for real, pose, place in poses:
-        assert real.split == "train" and real.place // 12 == place // 12  # synthesized from its own cell's real view
-        v = viewpoint[place]
-        assert math.hypot(pose.x - v.x, pose.y - v.y) <= 0.2 + 1e-9
-        assert abs(math.remainder(pose.yaw - v.yaw, 2 * math.pi)) <= math.radians(4) + 1e-9
+    for cell in cells:
+        assert cell.real.pose == reals[cell.real_class].pose
+        # Every class of the cell: the real one gets 2 jittered copies, the others their viewpoint and 2 copies.
+        first = cell.real_class - cell.real_class % 12
+        assert sorted(cell.poses) == list(range(first, first + 12))
+        for place, poses in cell.poses.items():
+            assert len(poses) == (2 if place == cell.real_class else 3)
+            v = viewpoint[place]
+            if place != cell.real_class:
+                assert poses[0] == v
+            for pose in poses:
+                assert math.hypot(pose.x - v.x, pose.y - v.y) <= 0.2 + 1e-9
+                assert abs(math.remainder(pose.yaw - v.yaw, 2 * math.pi)) <= math.radians(4) + 1e-9
 
 
 def test_runs_fuses_reports_and_resumes(tmp_path, dataset, stand_in_registry, monkeypatch):
@@ -72,7 +81,7 @@ def test_runs_fuses_reports_and_resumes(tmp_path, dataset, stand_in_registry, mo
     def no_training(*args, **kwargs):
         raise AssertionError("trained again")
 
-    monkeypatch.setattr("ssga_core.experiment.train_gcn", no_training)
+    monkeypatch.setattr("ssga_bench.experiment.train_gcn", no_training)
     again, _ = run_experiment(exp, dataset, tmp_path)
     assert again.markdown() == report.markdown()
     with pytest.raises(AssertionError, match="trained again"):
@@ -96,11 +105,11 @@ def test_variants_without_s_train_every_class_of_a_cell_on_its_real_graph(tmp_pa
 
     def recording(graphs, labels, num_classes, config, progress=None):
         seen[len(seen)] = (list(graphs), list(labels))
-        from ssga_core.gcn import train_gcn
+        from ssga_bench.gcn import train_gcn
 
         return train_gcn(graphs, labels, num_classes, config)
 
-    monkeypatch.setattr("ssga_core.experiment.train_gcn", recording)
+    monkeypatch.setattr("ssga_bench.experiment.train_gcn", recording)
     exp = experiment(stand_in_registry)
     run_experiment(exp, dataset, tmp_path)
     graphs, labels = seen[1]  # PD, the second variant

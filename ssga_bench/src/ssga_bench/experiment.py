@@ -14,7 +14,7 @@ For each variant:
 3. **Train** the variant's GCN, **score** every test view (query path).
 
 Then the fuser combines the variants' class probabilities and every row is evaluated
-per difficulty level (:mod:`ssga_core.evaluation`).
+per difficulty level (:mod:`ssga_bench.evaluation`).
 
 Outputs in the experiment folder: ``variants/<label>/`` (``gcn.pt``, ``scores.npy``,
 ``training.json``), ``report.md``, ``results.csv``, ``results.png``, ``timings.json``.
@@ -25,13 +25,12 @@ skips finished variants and an interrupted run resumes with the next one.
 from __future__ import annotations
 
 import hashlib
-import io
 import json
 import math
 import re
 import time
-from collections import defaultdict
-from collections.abc import Callable, Iterator
+from collections import Counter, defaultdict
+from collections.abc import Callable, Iterable, Iterator
 from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -39,16 +38,18 @@ from typing import Any
 
 import numpy as np
 
-from ssga_core.cache import FeatureCache
-from ssga_core.config import Experiment, ResolvedVariant, TrainingConfig
-from ssga_core.data import SceneGraph, View
-from ssga_core.dataset import Dataset
-from ssga_core.evaluation import Report
-from ssga_core.gcn import load_gcn, save_gcn, train_gcn
+from ssga_bench.cache import FeatureCache
+from ssga_bench.config import Experiment, TrainingConfig
+from ssga_bench.dataset import Dataset, build_workspace
+from ssga_bench.evaluation import Report
+from ssga_bench.protocol import Sample
+from ssga_bench.gcn import load_gcn, save_gcn, train_gcn
+from ssga_bench.io import atomic_write_bytes, load_npy, npy_bytes, read_json, warn, writable_folder, write_json
+from ssga_core.data import View
+from ssga_core.errors import SsgaError
+from ssga_core.config import ResolvedVariant
 from ssga_core.geometry import Pose
-from ssga_core.io import atomic_write_bytes, read_json, write_json
-from ssga_core.pipeline import BoundVariant, build_graph
-from ssga_core.protocol import Sample
+from ssga_core.pipeline import BoundVariant, CellTraining, build_graph, training_graphs
 from ssga_core.stages import Fuser
 
 Progress = Callable[[str, int, int], None]
@@ -95,23 +96,35 @@ def jittered(pose: Pose, rng: np.random.Generator, metres: float, degrees: float
     return Pose(pose.x + r * math.cos(phi), pose.y + r * math.sin(phi), yaw, pose.height)
 
 
-def training_poses(dataset: Dataset, config: TrainingConfig) -> list[tuple[Sample, Pose, int]]:
-    """``(real sample, pose to synthesize, class)`` for every synthetic training graph, seeded."""
+def training_cells(dataset: Dataset, config: TrainingConfig, views: Views) -> list[CellTraining]:
+    """Each cell's real view and the poses of every class's pseudo-training graphs, seeded.
+
+    A target class gets its training viewpoint and ``synthetic_per_class - 1``
+    jittered copies; the real class has its real view already, and gets the
+    jittered copies beside it. Jitters are drawn class by class.
+    """
     rng = np.random.default_rng(config.seed)
-    real_of_cell = {s.cell: s for s in dataset.split("train")}
-    out = []
+    poses: dict[int, dict[int, list[Pose]]] = defaultdict(dict)
     for s in sorted(dataset.split("train") + dataset.split("target"), key=lambda s: s.place):
-        real = real_of_cell[s.cell]
-        # A target class gets its target and n - 1 jittered copies; the real class has its
-        # real graph already, and gets n - 1 jittered syntheses beside it.
         first = [] if s.split == "train" else [s.pose]
-        poses = first + [jittered(s.pose, rng, config.jitter_m, config.jitter_deg) for _ in range(config.synthetic_per_class - 1)]
-        out.extend((real, p, s.place) for p in poses)
-    return out
+        jitters = [jittered(s.pose, rng, config.jitter_m, config.jitter_deg) for _ in range(config.synthetic_per_class - 1)]
+        poses[s.cell][s.place] = first + jitters
+    return [CellTraining(views(s, keep=True), s.place, poses[s.cell]) for s in dataset.split("train")]
 
 
-def slug(label: str) -> str:
-    return re.sub(r"[^A-Za-z0-9._-]+", "_", label).strip("_") or "variant"
+def folder_names(labels: Iterable[str]) -> dict[str, str]:
+    """A folder name for each variant label: readable (``P-SL (PDS)`` -> ``P-SL_PDS``), and
+    never shared by two labels (``x y`` and ``x/y``) nor outside the output folder (``..``):
+    a name that would be gets a short hash of its label."""
+    labels = list(labels)
+    readable = {label: re.sub(r"[^A-Za-z0-9._-]+", "_", label).strip("_.") for label in labels}
+    taken = Counter(readable.values())
+    names = {}
+    for label, name in readable.items():
+        if not name or taken[name] > 1:
+            name = f"{name or 'variant'}-{hashlib.blake2b(label.encode(), digest_size=3).hexdigest()}"
+        names[label] = name
+    return names
 
 
 def variant_key(rv: ResolvedVariant, training: TrainingConfig, dataset: Dataset) -> str:
@@ -155,38 +168,14 @@ def run_variant(
     """Train and score one variant; returns ``(test views, classes)`` probabilities."""
     key = variant_key(rv, training, dataset)
     scores_path, meta_path = folder / "scores.npy", folder / "training.json"
-    if scores_path.exists() and meta_path.exists() and read_json(meta_path).get("key") == key:
-        return np.load(scores_path)
+    finished = _finished_scores(folder, key, (len(dataset.split("test")), dataset.num_classes))
+    if finished is not None:
+        return finished
 
     bound = rv.bind()
     instrument(bound, timings)
-    reals = {s.cell: s for s in dataset.split("train")}
-    graphs: list[SceneGraph] = []
-    labels: list[int] = []
-    synthetic = training_poses(dataset, training) if bound.variant.synthesizes else []
-    fit_views = [views(s, keep=True) for s in reals.values()]
-    fit_labels = [s.place for s in reals.values()]
-    if synthetic:
-        # The descriptor learns from the synthetic views too, as the GCN will see them.
-        for real, pose, place in synthetic[:: training.synthetic_per_class]:
-            fit_views.append(bound.synthesizer.synthesize(views(real, keep=True), pose).view)  # type: ignore[union-attr]
-            fit_labels.append(place)
-    bound.descriptor.fit(fit_views, fit_labels)
-    orientations = dataset.plan.config.orientations
-    for s in reals.values():
-        graph = build_graph(bound, views(s, keep=True), cache=cache)
-        # Without S, the real graph is all a cell has: it stands for each of the cell's classes.
-        stands_for = [s.place]
-        if not bound.variant.synthesizes and training.real_for_every_class:
-            first = s.place - s.place % orientations
-            stands_for = list(range(first, first + orientations))
-        graphs.extend([graph] * len(stands_for))
-        labels.extend(stands_for)
-    for n, (real, pose, place) in enumerate(synthetic, 1):
-        graphs.append(build_graph(bound, views(real, keep=True), pose, cache=cache))
-        labels.append(place)
-        if progress:
-            progress("training graphs", n, len(synthetic))
+    cells = training_cells(dataset, training, views)
+    graphs, labels = training_graphs(bound, cells, real_for_every_class=training.real_for_every_class, memo=cache, progress=progress)
     with timings.phase("train"):
         model, report = train_gcn(graphs, np.array(labels), dataset.num_classes, training)
     save_gcn(model, folder / "gcn.pt")
@@ -194,20 +183,28 @@ def run_variant(
     tests = dataset.split("test")
     test_graphs = []
     for n, s in enumerate(tests, 1):
-        test_graphs.append(build_graph(bound, views(s), cache=cache))
+        test_graphs.append(build_graph(bound, views(s), memo=cache))
         if progress:
             progress("test graphs", n, len(tests))
     with timings.phase("evaluate"):
         scores = load_gcn(folder / "gcn.pt").predict(test_graphs)
-    atomic_write_bytes(scores_path, _npy_bytes(scores))
+    atomic_write_bytes(scores_path, npy_bytes(scores))
     write_json(meta_path, {"key": key, "label": rv.label, "graphs": len(graphs), **asdict(report)})
     return scores
 
 
-def _npy_bytes(array: np.ndarray) -> bytes:
-    out = io.BytesIO()
-    np.save(out, array)
-    return out.getvalue()
+def _finished_scores(folder: Path, key: str, shape: tuple[int, int]) -> np.ndarray | None:
+    """The scores a finished run of this variant left, or None; damaged ones are recomputed, with a warning."""
+    scores_path, meta_path = folder / "scores.npy", folder / "training.json"
+    if not (scores_path.exists() and meta_path.exists()):
+        return None
+    try:
+        if read_json(meta_path).get("key") != key:
+            return None
+    except (SsgaError, AttributeError):
+        warn(f"{meta_path}: damaged; training this variant again")
+        return None
+    return load_npy(scores_path, shape, what="scores")
 
 
 def run_experiment(
@@ -226,15 +223,17 @@ def run_experiment(
         variant_progress: called with each variant's label as it starts.
         cache_root: folder of the feature cache (default ``out/cache``), shareable between runs.
     """
-    out = Path(out)
+    out = writable_folder(out)
     timings = Timings()
     cache = FeatureCache(cache_root if cache_root is not None else out / "cache")
     views = Views(dataset, timings)
     scores: dict[str, np.ndarray] = {}
+    folders = folder_names(rv.label for rv in experiment.variants)
     for rv in experiment.variants:
         if variant_progress:
             variant_progress(rv.label)
-        scores[rv.label] = run_variant(rv, dataset, experiment.config.training, out / "variants" / slug(rv.label), cache, views, timings, progress)
+        folder = out / "variants" / folders[rv.label]
+        scores[rv.label] = run_variant(rv, dataset, experiment.config.training, folder, cache, views, timings, progress)
     fuser = experiment.fuser.create()
     assert isinstance(fuser, Fuser)
     tests = dataset.split("test")
@@ -247,4 +246,28 @@ def run_experiment(
     atomic_write_bytes(out / "results.csv", report.csv().encode())
     atomic_write_bytes(out / "results.png", report.plot())
     write_json(out / "timings.json", dict(timings.seconds))
+    return report, timings
+
+
+def run(
+    *,
+    experiment: Experiment,
+    output: Path | None = None,
+    progress: Progress | None = None,
+    variant_progress: Callable[[str], None] | None = None,
+) -> tuple[Report, Timings]:
+    """Build (or reuse) the experiment's workspace, then train, score, fuse and report every variant.
+
+    Args:
+        output: the experiment folder; default the config's ``output``.
+        progress, variant_progress: as for :func:`run_experiment`; the workspace
+            build reports its phases (``plan``, ``render``) through ``progress`` too.
+    """
+    output = writable_folder(output or experiment.config.output)
+    timings = Timings()
+    with timings.phase("workspace (plan + render)"):
+        dataset = build_workspace(experiment.workspace, experiment.config.protocol, progress=progress)
+    report, ran = run_experiment(experiment, dataset, output, progress=progress, variant_progress=variant_progress)
+    for phase, seconds in ran.seconds.items():
+        timings.seconds[phase] += seconds
     return report, timings

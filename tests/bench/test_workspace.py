@@ -6,8 +6,8 @@ import pytest
 import shapely
 
 from ssga_core import InputError
-from ssga_core.io import read_json, write_json
-from ssga_core.workspace import FloorPlan
+from ssga_bench.io import read_json, write_json
+from ssga_bench.workspace import FloorPlan
 
 
 def test_floor_plans_round_trip_with_holes(tmp_path):

@@ -1,0 +1,43 @@
+"""The benchmark layer's commands (``run``, ``demo``, ``bench``, ``workspace``, ``config``).
+
+Each module has a ``register(app)`` that the plugin hook calls; each command is a thin
+wrapper over a keyword-only library function of :mod:`ssga_bench`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from contextlib import contextmanager
+from typing import Any
+
+from rich.console import Console
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
+
+
+class Bars:
+    """Progress bars for the library's ``progress(phase, done, total)`` callbacks, one bar per phase."""
+
+    def __init__(self, progress: Progress, console: Console) -> None:
+        self._progress = progress
+        self._console = console
+        self._tasks: dict[str, Any] = {}
+
+    def __call__(self, phase: str, done: int, total: int) -> None:
+        if phase not in self._tasks:
+            self._tasks[phase] = self._progress.add_task(phase, total=total)
+        self._progress.update(self._tasks[phase], completed=done, total=total)
+
+    def variant(self, label: str) -> None:
+        """A new variant starts: clear the last one's bars and say which."""
+        for task in self._tasks.values():
+            self._progress.remove_task(task)
+        self._tasks.clear()
+        self._console.print(f"variant {label}")
+
+
+@contextmanager
+def progress_bars(*, transient: bool = True) -> Iterator[Bars]:
+    console = Console(stderr=True)
+    columns = (TextColumn("{task.description:<32}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(), TimeRemainingColumn())
+    with Progress(*columns, console=console, transient=transient) as progress:
+        yield Bars(progress, console)

@@ -1,0 +1,97 @@
+"""``ssga run``, ``ssga demo`` and ``ssga bench``: experiments from configs, with progress bars."""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+from typing import Annotated
+
+import typer
+from rich.console import Console
+from rich.table import Table
+
+from ssga_core.cli import command, current_registry
+from ssga_bench.cli import progress_bars
+from ssga_bench.config import Experiment, load_experiment, packaged_config
+from ssga_bench.evaluation import LEVELS, METRIC_TITLES, METRICS, Report
+
+
+def result_table(report: Report) -> Table:
+    """Table 1's layout: a row per variant and reference, Top-1, Top-5 and MRR at L1, L2, L3."""
+    table = Table(title=f"{report.title}: test views L1 {report.counts['L1']}, L2 {report.counts['L2']}, L3 {report.counts['L3']}")
+    table.add_column("")
+    for m in METRICS:
+        for lv in LEVELS[:3]:
+            table.add_column(f"{METRIC_TITLES[m].split('[')[0]} {lv}", justify="right")
+    for label, row in report.table.items():
+        style = "bold" if label == report.ensemble else ("dim" if label == "random" else None)
+        table.add_row(label, *(f"{row[lv][m]:.1f}" for m in METRICS for lv in LEVELS[:3]), style=style)
+    return table
+
+
+def _print_result(console: Console, report: Report, output: Path) -> None:
+    # The table needs ~120 columns; rich assumes 80 when output is not a terminal.
+    console.width = max(console.width, 124)
+    console.print(result_table(report))
+    console.print(f"report: {output / 'report.md'}, {output / 'results.csv'}, {output / 'results.png'}")
+
+
+def _run(experiment: Experiment, output: Path | None) -> None:
+    from ssga_bench.experiment import run  # torch, through the GCN: only for the commands that train
+
+    with progress_bars() as bars:
+        report, _ = run(experiment=experiment, output=output, progress=bars, variant_progress=bars.variant)
+    _print_result(Console(), report, output or experiment.config.output)
+
+
+def run_cli(
+    config: Annotated[Path, typer.Argument(help="Experiment config (TOML).")],
+    output: Annotated[Path | None, typer.Option(help="Output folder [default: the config's `output`].")] = None,
+) -> None:
+    """Run an experiment: build its workspace, train and score every variant, fuse, report."""
+    _run(load_experiment(config, current_registry()), output)
+
+
+def demo_cli(
+    output: Annotated[Path | None, typer.Option(help="Output folder [default: runs/demo].")] = None,
+) -> None:
+    """The paper's eight variants and their ensemble on a small embedded workspace (a few minutes on a laptop CPU)."""
+    start = time.perf_counter()
+    _run(load_experiment(packaged_config("demo.toml"), current_registry()), output)
+    Console().print(f"demo finished in {time.perf_counter() - start:.0f} s")
+
+
+def bench_cli(
+    config: Annotated[Path | None, typer.Argument(help="Experiment config [default: the packaged bench.toml].")] = None,
+    seeds: Annotated[str, typer.Option(help="Comma-separated seeds: one workspace, protocol draw and training seed each.")] = "0,1,2",
+    test_per_class: Annotated[
+        int | None, typer.Option(min=1, help="Override protocol.test_per_class (smaller for a quick run).")
+    ] = None,
+    output: Annotated[Path | None, typer.Option(help="Output folder [default: the config's `output`].")] = None,
+) -> None:
+    """The full protocol on several seeds: Table 1 per seed, the mean over seeds, and where the time goes."""
+    from ssga_bench.bench import parse_seeds, run_bench
+
+    registry = current_registry()
+    seed_list = parse_seeds(seeds)
+    base = load_experiment(config or packaged_config("bench.toml"), registry)
+    console = Console()
+    with progress_bars() as bars:
+        summary, _ = run_bench(
+            base=base,
+            seeds=seed_list,
+            registry=registry,
+            output=output,
+            test_per_class=test_per_class,
+            on_seed=lambda seed: console.print(f"[bold]seed {seed}[/bold]"),
+            on_result=lambda seed, report, folder: _print_result(console, report, folder),
+            progress=bars,
+            variant_progress=bars.variant,
+        )
+    console.print(summary)
+
+
+def register(app: typer.Typer) -> None:
+    command(app, name="run")(run_cli)
+    command(app, name="demo")(demo_cli)
+    command(app, name="bench")(bench_cli)

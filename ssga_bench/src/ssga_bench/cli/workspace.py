@@ -1,0 +1,93 @@
+"""``ssga workspace``: build a benchmark workspace on disk, and look at one."""
+
+from __future__ import annotations
+
+import tomllib
+from pathlib import Path
+from typing import Annotated, Any
+
+import typer
+from pydantic import ValidationError
+
+from ssga_core.cli import command, current_registry
+from ssga_core.config import pydantic_problems, resolve_stage
+from ssga_core.errors import ConfigError, InputError
+from ssga_bench.cli import progress_bars
+
+workspace_app = typer.Typer(
+    help="Build benchmark workspaces (cells, classes, rendered views) and look at them.", no_args_is_help=True, rich_markup_mode=None
+)
+
+
+def parse_option(text: str) -> tuple[str, Any]:
+    """``key=value`` with a TOML value (``rooms=5``, ``shading=false``, ``path="a b.glb"``), or a bare string."""
+    key, sep, value = text.partition("=")
+    if not sep or not key.strip():
+        raise InputError(f"--option {text!r}: expected key=value")
+    try:
+        parsed = tomllib.loads(f"v = {value}")["v"]
+    except tomllib.TOMLDecodeError:
+        parsed = value
+    return key.strip(), parsed
+
+
+def build_cli(
+    config: Annotated[
+        Path | None, typer.Option("--config", "-c", help="Take the workspace and protocol from this experiment config [default: the demo's].")
+    ] = None,
+    source: Annotated[str | None, typer.Option(help="Workspace source plugin (`ssga plugins` lists them) [default: the config's].")] = None,
+    option: Annotated[list[str] | None, typer.Option("--option", "-o", help="A parameter of the source, key=value; repeatable.")] = None,
+    seed: Annotated[int | None, typer.Option(min=0, help="Seed of the protocol, and of the source if it has one.")] = None,
+    cells: Annotated[int | None, typer.Option(help="Location cells (classes = cells x 12).")] = None,
+    test_per_class: Annotated[int | None, typer.Option(help="Test views per class (the paper: 1500).")] = None,
+    cell_size: Annotated[float | None, typer.Option(help="Side of a location cell, metres.")] = None,
+    out: Annotated[Path | None, typer.Option(help="Dataset folder [default: runs/workspaces/<workspace>-<settings hash>].")] = None,
+    overwrite: Annotated[bool, typer.Option(help="Replace a dataset built with other settings (only the files ssga wrote).")] = False,
+) -> None:
+    """Plan and render a benchmark workspace; an interrupted build resumes where it stopped."""
+    from ssga_bench.config import load_experiment, packaged_config
+    from ssga_bench.dataset import build_workspace
+    from ssga_bench.protocol import ProtocolConfig
+
+    registry = current_registry()
+    base = load_experiment(config or packaged_config("demo.toml"), registry)
+    given = dict(parse_option(o) for o in option or [])
+    options: dict[str, Any] = {}
+    if source is None:
+        # The base's source, already resolved: its paths follow its config file; new options follow the current folder.
+        source = base.workspace.name
+        options = base.workspace.config.model_dump()
+    if seed is not None and "seed" in registry.get("workspace", source).Config.model_fields:
+        options["seed"] = seed
+    overrides = {k: v for k, v in {"seed": seed, "cells": cells, "test_per_class": test_per_class, "cell_size": cell_size}.items() if v is not None}
+    try:
+        protocol = ProtocolConfig.model_validate({**base.config.protocol.model_dump(), **overrides})
+    except ValidationError as exc:
+        raise ConfigError("command-line options", pydantic_problems(exc, ("protocol",))) from None
+    stage = resolve_stage("workspace", {"name": source, **options, **given}, registry, source="command-line options")
+    with progress_bars(transient=False) as bars:
+        dataset = build_workspace(stage, protocol, out=out, overwrite=overwrite, progress=bars)
+    levels = dataset.plan.level_counts()
+    typer.echo(
+        f"{dataset.root}: {dataset.num_classes} classes, {len(dataset.split('train'))} real training views, "
+        f"{len(dataset.split('test'))} test views (L1 {levels[1]}, L2 {levels[2]}, L3 {levels[3]})"
+    )
+
+
+def show_cli(
+    dataset: Annotated[Path, typer.Argument(help="A dataset folder made by `ssga workspace build`.")],
+    colour_by: Annotated[str, typer.Option("--by", help="Colour test cameras by 'class' or 'level'.")] = "class",
+    out: Annotated[Path | None, typer.Option(help="Folder for the pictures [default: the dataset folder].")] = None,
+) -> None:
+    """Draw a bird's-eye plan (walls, cells, cameras and frusta) and a contact sheet of views."""
+    from ssga_bench.dataset import Dataset
+    from ssga_bench.figures import draw_workspace
+
+    paths = draw_workspace(dataset=Dataset.open(dataset), colour_by=colour_by, out=out)
+    typer.echo("\n".join(map(str, paths)))
+
+
+def register(app: typer.Typer) -> None:
+    command(workspace_app, name="build")(build_cli)
+    command(workspace_app, name="show")(show_cli)
+    app.add_typer(workspace_app, name="workspace")

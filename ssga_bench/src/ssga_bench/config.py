@@ -1,0 +1,147 @@
+"""Experiment configs: one TOML file, validated in two steps, every problem reported at once.
+
+Step 1 checks the file's shape against :class:`ExperimentConfig`. Step 2 resolves every
+stage reference through the core's :class:`~ssga_core.config.Resolver` (the one path from
+a config to stage instances: plugin parameters validated by the plugin's own ``Config``,
+relative paths taken from the config file's folder), parses each variant and checks each
+binding against its plugins and the workspace's views. A minimal config::
+
+    variants = ["PDS", "PSD", "SPD", "DSP", "PD", "DS", "SD", "D"]
+
+    [workspace]
+    name = "procedural"
+
+    [stages]
+    parser = { name = "slico" }
+    descriptor = { name = "dense-sift" }
+    synthesizer = { name = "depth-warp" }
+
+A section left out (``workspace``, ``fuser``) is taken from the packaged
+``configs/defaults.toml``: ssga's code names no particular plugin.
+
+Whatever validates must run: every number is bounded to what the runner can do, and
+non-finite floats are refused.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from importlib import resources
+from pathlib import Path
+from typing import Any, Literal
+
+from pydantic import ConfigDict, Field, ValidationError
+
+from ssga_core.config import REF_TYPES, ResolvedStage, ResolvedVariant, Resolver, Strict, VariantsConfig, pydantic_problems, read_toml, stage_schemas
+from ssga_core.errors import ConfigError
+from ssga_core.plugins import Registry
+from ssga_bench.protocol import ProtocolConfig
+
+WorkspaceRef = REF_TYPES["workspace"]
+FuserRef = REF_TYPES["fuser"]
+
+
+def packaged_config(name: str) -> Path:
+    """Path of a config shipped with ssga-bench (``demo.toml``, ``bench.toml``, ``defaults.toml``)."""
+    return Path(str(resources.files("ssga_bench") / "configs" / name))
+
+
+class TrainingConfig(Strict):
+    """The per-variant GCN place classifier and its training data."""
+
+    model_config = ConfigDict(allow_inf_nan=False)
+
+    hidden: int = Field(default=256, gt=0, le=8192, description="Hidden width of the GCN.")
+    layers: int = Field(default=2, ge=1, le=32, description="Graph-convolution layers.")
+    dropout: float = Field(default=0.5, ge=0.0, lt=1.0)
+    readout: Literal["mean", "weighted"] = Field(
+        default="mean", description="Pool node states by their mean, or by their node weights (whole image 1, parts 1/K)."
+    )
+    epochs: int = Field(default=200, gt=0, le=100_000)
+    lr: float = Field(default=1e-3, gt=0.0, le=10.0)
+    weight_decay: float = Field(default=5e-4, ge=0.0, le=10.0)
+    patience: int = Field(default=20, gt=0, le=100_000, description="Epochs without validation improvement before stopping.")
+    validation_fraction: float = Field(default=0.2, gt=0.0, lt=1.0, description="Share of training graphs held out for early stopping.")
+    synthetic_per_class: int = Field(
+        default=4, gt=0, le=1000, description="Synthetic graphs per class (variants with S): the target and jittered copies."
+    )
+    jitter_m: float = Field(default=0.15, ge=0.0, le=5.0, description="Jittered copies move up to this far from the training viewpoint, metres.")
+    jitter_deg: float = Field(default=5.0, ge=0.0, le=180.0, description="...and turn up to this much, degrees.")
+    real_for_every_class: bool = Field(
+        default=True,
+        description="Variants without S train each class of a cell on the cell's real graph (the paper: they 'simply use "
+        "available training images as they are'); false trains them on the real classes only.",
+    )
+    seed: int = Field(default=0, ge=0, lt=2**32, description="Seed of the jittered poses and of the GCN's training.")
+
+
+class ExperimentConfig(VariantsConfig):
+    """A whole experiment: where views come from, the variants and their stages, training, fusion."""
+
+    workspace: WorkspaceRef | None = Field(default=None, description="The workspace source [default: defaults.toml's].")  # type: ignore[valid-type]
+    protocol: ProtocolConfig = ProtocolConfig()
+    training: TrainingConfig = TrainingConfig()
+    fuser: FuserRef | None = Field(default=None, description="The late-fusion rule [default: defaults.toml's].")  # type: ignore[valid-type]
+    output: Path = Field(default=Path("runs/experiment"), description="Folder for caches, checkpoints and reports (relative: to the current directory).")
+
+
+@dataclass(frozen=True)
+class Experiment:
+    """A validated config with every stage resolved."""
+
+    config: ExperimentConfig
+    workspace: ResolvedStage
+    variants: list[ResolvedVariant]
+    fuser: ResolvedStage
+    source: str = "<config>"
+    base_dir: Path | None = None
+    """The folder relative paths of the config were taken from (the config file's)."""
+
+
+def load_experiment(path: str | Path, registry: Registry) -> Experiment:
+    """Read and validate an experiment config file; raise :class:`ConfigError` with every problem."""
+    path = Path(path)
+    return validate_experiment(read_toml(path), registry, source=str(path), base_dir=path.parent)
+
+
+def _defaults() -> dict[str, Any]:
+    return read_toml(packaged_config("defaults.toml"))
+
+
+def validate_experiment(data: dict[str, Any], registry: Registry, *, source: str = "<config>", base_dir: Path | None = None) -> Experiment:
+    """Validate a config mapping (see the module docstring).
+
+    Args:
+        base_dir: relative paths in stage parameters are taken from this folder, the
+            config file's; ``None`` leaves them relative to the current directory.
+    """
+    try:
+        config = ExperimentConfig.model_validate(data)
+    except ValidationError as exc:
+        raise ConfigError(source, pydantic_problems(exc)) from None
+    defaults = _defaults()
+    resolver = Resolver(registry, base_dir)
+    # A section taken from the defaults is the package's, so its paths are not the config file's.
+    packaged = Resolver(registry)
+    workspace = (
+        resolver.stage(config.workspace, "workspace", ("workspace",))
+        if config.workspace is not None
+        else packaged.stage(WorkspaceRef.model_validate(defaults["workspace"]), "workspace", ("defaults.toml", "workspace"))
+    )
+    fuser = (
+        resolver.stage(config.fuser, "fuser", ("fuser",))
+        if config.fuser is not None
+        else packaged.stage(FuserRef.model_validate(defaults["fuser"]), "fuser", ("defaults.toml", "fuser"))
+    )
+    resolver.problems.extend(packaged.problems)
+    variants = resolver.variants(config, available=workspace.cls.produces if workspace else None)
+    resolver.raise_problems(source)
+    assert workspace is not None and fuser is not None
+    return Experiment(config=config, workspace=workspace, variants=variants, fuser=fuser, source=source, base_dir=base_dir)
+
+
+def experiment_schema(registry: Registry) -> dict[str, Any]:
+    """JSON schema of the config file, with each stage reference listing the installed plugins' own schemas."""
+    schema = ExperimentConfig.model_json_schema()
+    stage_schemas(registry, schema.setdefault("$defs", {}))
+    return schema

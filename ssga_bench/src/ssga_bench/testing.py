@@ -1,0 +1,50 @@
+"""A stand-in workspace source for tests: an empty square room with colour-banded walls.
+
+Register this module on a plugin set (or ``SSGA_PLUGIN_MODULES=ssga_bench.testing``)
+beside :mod:`ssga_core.testing.stages` to run whole experiments on stand-ins in seconds.
+"""
+
+from __future__ import annotations
+
+import shapely
+from pydantic import Field
+
+from ssga_core import Camera, Data, Pose, StageConfig, View, WorkspaceSource, hookimpl
+from ssga_core.testing import make_panorama_view, make_view
+from ssga_bench.workspace import FloorPlan
+
+
+class WallConfig(StageConfig):
+    size: float = Field(default=10.0, gt=1.0, description="Side of the square room, metres.")
+    seed: int = 0
+
+
+class WallWorkspaceSource(WorkspaceSource):
+    """An empty square room painted with vertical colour bands (:func:`make_panorama_view`)."""
+
+    name = "test-wall"
+    Config = WallConfig
+    produces = frozenset({Data.RGB, Data.DEPTH, Data.SEMANTIC})
+
+    def open(self) -> _WallWorkspace:
+        half = self.config.size / 2
+        walls = shapely.box(-half - 0.1, -half - 0.1, half + 0.1, half + 0.1).difference(shapely.box(-half, -half, half, half))
+        plan = FloorPlan(free=shapely.box(-half + 0.3, -half + 0.3, half - 0.3, half - 0.3), occluders=walls)
+        return _WallWorkspace(f"test-wall-{self.config.seed}", make_view().camera, plan, self.config.seed)
+
+
+class _WallWorkspace:
+    """Satisfies :class:`ssga_bench.Workspace`."""
+
+    camera_height = 1.5
+
+    def __init__(self, name: str, camera: Camera, floor_plan: FloorPlan, seed: int) -> None:
+        self.name, self.camera, self.floor_plan, self.seed = name, camera, floor_plan, seed
+
+    def render(self, pose: Pose) -> View:
+        return make_panorama_view(pose, seed=self.seed)
+
+
+@hookimpl
+def ssga_register_workspaces() -> list[type[WorkspaceSource]]:
+    return [WallWorkspaceSource]
