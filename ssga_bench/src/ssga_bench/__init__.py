@@ -20,6 +20,7 @@ _EXPORTS = {
     "BoWConfig": "bow",
     "BoWDescriptor": "bow",
     "BoWDescriptorConfig": "bow",
+    "NotFittedError": "bow",
     # files: atomic writes, one-line read errors
     "OutputError": "io",
     "atomic_write_bytes": "io",

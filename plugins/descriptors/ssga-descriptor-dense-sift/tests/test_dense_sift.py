@@ -8,7 +8,7 @@ import pytest
 from ssga_descriptor_dense_sift.plugin import DenseSift, DenseSiftConfig, grid_positions, keypoint_octave, root_sift
 
 from ssga_core import Camera, InputError, Pose, View
-from ssga_bench.bow import BoWConfig, NotFittedError
+from ssga_bench import BoWConfig, NotFittedError
 from ssga_core.testing import get_plugin_manager
 from ssga_core.testing import check_descriptor, check_descriptor_in_all_orders, make_view
 

@@ -11,7 +11,7 @@ from ssga_workspace_folder.plugin import FolderConfig, FolderWorkspaceSource
 
 from ssga_core import InputError, Pose
 from ssga_bench import build_dataset
-from ssga_bench.io import depth_to_png16, write_json, write_png
+from ssga_bench import depth_to_png16, write_json, write_png
 from ssga_bench import ProtocolConfig
 from ssga_bench.testing import WallWorkspaceSource
 

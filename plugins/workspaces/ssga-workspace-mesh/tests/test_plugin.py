@@ -10,7 +10,7 @@ import shapely
 
 from ssga_core import Data, InputError, Pose
 from ssga_core.testing import get_plugin_manager
-from ssga_bench.workspace import Workspace
+from ssga_bench import Workspace
 from ssga_workspace_mesh.loading import save_mesh_scene
 from ssga_workspace_mesh.plugin import MeshConfig, MeshWorkspaceSource
 from ssga_workspace_mesh.scenes import WALL, box_room

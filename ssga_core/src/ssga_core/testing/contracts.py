@@ -107,18 +107,14 @@ def _check_graph(graph: SceneGraph, dim: int, order: str) -> None:
 
 def _run_orders(parser: Parser, descriptor: Descriptor, synthesizer: Synthesizer, view: View) -> list[str]:
     ran = []
-    bound_classes = {"parser": type(parser), "descriptor": type(descriptor), "synthesizer": type(synthesizer)}
+    stages = {stage.kind: stage for stage in (parser, descriptor, synthesizer)}
     descriptor.fit([view])
     for order in all_orders():
         variant = parse_variant(order)
-        if check_binding(variant, bound_classes, view.available):
+        used = {kind: stages[kind] for kind in variant.kinds()}
+        if check_binding(variant, {kind: type(stage) for kind, stage in used.items()}, view.available):
             continue
-        bound = BoundVariant(
-            variant,
-            descriptor=descriptor,
-            parser=parser if "P" in order else None,
-            synthesizer=synthesizer if "S" in order else None,
-        )
+        bound = BoundVariant(variant, **used)  # type: ignore[arg-type]
         _check_graph(build_graph(bound, view), descriptor.dim, order)
         if variant.synthesizes:
             _check_graph(build_graph(bound, view, _target(view)), descriptor.dim, order)
