@@ -10,9 +10,7 @@ import pytest
 from ssga_workspace_folder.plugin import FolderConfig, FolderWorkspaceSource
 
 from ssga_core import InputError, Pose
-from ssga_bench import build_dataset
-from ssga_bench import depth_to_png16, write_json, write_png
-from ssga_bench import ProtocolConfig
+from ssga_bench import ProtocolConfig, build_dataset, depth_to_png16, write_json, write_png
 from ssga_bench.testing import WallWorkspaceSource
 
 
@@ -105,3 +103,28 @@ def test_broken_files_are_named(tmp_path):
         open_folder(tmp_path)
     with pytest.raises(InputError, match="no such folder"):
         open_folder(tmp_path / "nope")
+
+
+def test_a_relative_folder_follows_the_config_file_in_every_command(tmp_path, monkeypatch):
+    """`path = "caps"` in cfgdir/exp.toml means cfgdir/caps for `config validate`, `workspace build` and `run` alike."""
+    from typer.testing import CliRunner
+
+    from ssga_core.cli import app_with_plugin_commands
+
+    make_folder(tmp_path / "cfgdir" / "caps", n=300)
+    (tmp_path / "cfgdir" / "exp.toml").write_text(
+        'variants = ["PD"]\noutput = "out"\n[workspace]\nname = "folder"\npath = "caps"\n'
+        "[protocol]\ncells = 2\ntest_per_class = 1\nseed = 1\n"
+        '[stages]\nparser = { name = "slico" }\ndescriptor = { name = "dense-sift" }\n[training]\nepochs = 2\n'
+    )
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    monkeypatch.chdir(elsewhere)
+    app, runner = app_with_plugin_commands(), CliRunner()
+    config = str(tmp_path / "cfgdir" / "exp.toml")
+    for args in (["config", "validate", config], ["workspace", "build", "--config", config], ["run", config]):
+        result = runner.invoke(app, args)
+        assert result.exit_code == 0, (args, result.output)
+    built = json.loads(next((elsewhere / "runs" / "workspaces").glob("*/dataset.json")).read_text())
+    assert built["source"]["path"] == str(tmp_path / "cfgdir" / "caps")
+    assert (elsewhere / "out" / "report.md").exists()  # `output` is relative to where ssga runs

@@ -44,7 +44,7 @@ def _print_config(console: Console, path: Path, rows: list[dict[str, Any]]) -> N
 @command(name="variants")
 def variants_cli(
     list_orders: Annotated[bool, typer.Option("--list", "-l", help="List every valid order (what the command shows without --config).")] = False,
-    config: Annotated[Path | None, typer.Option("--config", "-c", help="List the variants this experiment config binds, with their plugins.")] = None,
+    config: Annotated[Path | None, typer.Option("--config", "-c", metavar="FILE", help="List the variants this experiment config binds, with their plugins.")] = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print JSON instead of tables.")] = False,
 ) -> None:
     """List the valid variant orders (and which the paper uses), or the variants a config binds, or both."""
