@@ -67,10 +67,12 @@ def run_bench(
     """Run ``base`` once per seed into ``output/seed-<n>``; write and return the summary (``bench.md``, ``bench.json``)."""
     if not seeds:
         raise InputError("no seed to run")
+    # Every seed's experiment is validated before any runs: a seed or test_per_class out of
+    # range is an error now, not after the seeds before it have run for hours.
+    experiments = {seed: seed_experiment(base, seed, registry, test_per_class) for seed in seeds}
     out = writable_folder(output or base.config.output)
     runs: dict[int, SeedRun] = {}
-    for seed in seeds:
-        experiment = seed_experiment(base, seed, registry, test_per_class)
+    for seed, experiment in experiments.items():
         if on_seed:
             on_seed(seed)
         start = time.perf_counter()

@@ -19,6 +19,7 @@ from typing import TypeVar
 import numpy as np
 
 from ssga_core.data import LocalFeatures, Regions, View
+from ssga_core.errors import SsgaError
 from ssga_bench.io import atomic_write_bytes, warn
 from ssga_core.stages import LocalDescriptor, Parser, Stage
 
@@ -47,21 +48,25 @@ class FeatureCache:
         self.root = Path(root) if root is not None else None
         self._memory: dict[tuple[str, str], object] = {}
 
-    def _load(self, stage: Stage, view: View) -> tuple[tuple[str, str], dict[str, np.ndarray] | None]:
+    def _load(self, stage: Stage, view: View, unpack: Callable[[dict[str, np.ndarray]], T]) -> tuple[tuple[str, str], T | None]:
         key = (stage_key(stage), view_key(view))
         if key in self._memory:
-            return key, self._memory[key]  # type: ignore[return-value]
+            return key, unpack(self._memory[key])  # type: ignore[arg-type]
         if self.root is not None:
             path = self.root / key[0] / f"{key[1]}.npz"
             if path.exists():
+                # A damaged entry is recomputed: unreadable, not an archive (TypeError: a bare
+                # .npy), or readable but not what the stage stores (a missing array, a bad shape).
                 try:
                     with np.load(path, allow_pickle=False) as data:
                         arrays = {k: data[k] for k in data.files}
-                except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
-                    warn(f"{path}: damaged cache entry ({' '.join(str(exc).split())[:120]}); computing it again")
+                    value = unpack(arrays)
+                except (OSError, ValueError, EOFError, TypeError, KeyError, zipfile.BadZipFile, SsgaError) as exc:
+                    detail = " ".join(str(exc).split())[:120]
+                    warn(f"{path}: damaged cache entry ({type(exc).__name__}: {detail}); computing it again")
                     return key, None
                 self._memory[key] = arrays
-                return key, arrays
+                return key, value
         return key, None
 
     def _store(self, key: tuple[str, str], arrays: dict[str, np.ndarray]) -> None:
@@ -74,11 +79,12 @@ class FeatureCache:
     def _cached(self, stage: Stage, view: View, compute: Callable[[View], T], pack: Callable[[T], dict[str, np.ndarray]], unpack: Callable[[dict[str, np.ndarray]], T]) -> T:
         if view.synthetic:
             return compute(view)
-        key, arrays = self._load(stage, view)
-        if arrays is None:
+        key, value = self._load(stage, view, unpack)
+        if value is None:
             arrays = pack(compute(view))
             self._store(key, arrays)
-        return unpack(arrays)
+            value = unpack(arrays)
+        return value
 
     def regions(self, parser: Parser, view: View) -> Regions:
         return self._cached(parser, view, parser.parse, _pack_regions, _unpack_regions)

@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import re
 from collections.abc import Callable
 from dataclasses import asdict
 from pathlib import Path
@@ -57,6 +58,8 @@ FORMAT = 1
 CHANNELS = ("rgb", "depth", "semantic", "instance")
 RECORDS = ("manifest.jsonl", "plan.json", "floorplan.json", "dataset.json")
 """The dataset's own files, in the order a replaced dataset's are deleted (the header last)."""
+_SAMPLE_ID = re.compile(r"[A-Za-z0-9][A-Za-z0-9_-]*")
+"""What a sample id ssga writes looks like (no path separator, no leading dot)."""
 
 
 def sample_record(sample: Sample) -> dict[str, Any]:
@@ -179,7 +182,11 @@ def remove_dataset(out: Path) -> None:
     try:
         ids = [r["id"] for r in read_json(out / "plan.json")["samples"]] if (out / "plan.json").exists() else []
     except (SsgaError, KeyError, TypeError):
-        raise InputError(f"{out / 'plan.json'}: damaged, so which views ssga wrote is unknown; delete the folder yourself") from None
+        ids = None
+    # ssga's ids are plain names (test-0003-00001); another (``../notes``) would delete
+    # a file that is no view ssga wrote, in the folder or outside it.
+    if ids is None or not all(isinstance(i, str) and _SAMPLE_ID.fullmatch(i) for i in ids):
+        raise InputError(f"{out / 'plan.json'}: damaged, so which views ssga wrote is unknown; delete the folder yourself")
     try:
         for channel in CHANNELS:
             for sample_id in ids:
@@ -235,11 +242,23 @@ class Dataset:
         if not (root / "manifest.jsonl").exists():
             raise InputError(f"{root}: the build did not finish (no manifest.jsonl); run `ssga workspace build` again to resume it")
         header = read_json(root / "dataset.json")
+        if not isinstance(header, dict):
+            raise InputError(f"{root / 'dataset.json'}: not a dataset header written by ssga (a JSON {type(header).__name__})")
         if header.get("format") != FORMAT:
             raise InputError(f"{root}: dataset format {header.get('format')!r}, this ssga reads format {FORMAT}")
-        config = ProtocolConfig.model_validate(header["protocol"])
-        plan = _read_plan(root, header["workspace"], config)
-        rows = {row["id"]: row for row in read_jsonl(root / "manifest.jsonl")}
+        # A damaged header or manifest (valid JSON of another shape) is a one-line error naming it.
+        try:
+            config = ProtocolConfig.model_validate(header["protocol"])
+            Camera(**header["camera"])
+            name = str(header["workspace"])
+        except (KeyError, TypeError, ValueError) as exc:
+            detail = " ".join(str(exc).split())[:200]
+            raise InputError(f"{root / 'dataset.json'}: not a dataset header written by ssga ({type(exc).__name__}: {detail})") from None
+        plan = _read_plan(root, name, config)
+        try:
+            rows = {row["id"]: row for row in read_jsonl(root / "manifest.jsonl")}
+        except (KeyError, TypeError) as exc:
+            raise InputError(f"{root / 'manifest.jsonl'}: not a manifest written by ssga (a row without an id: {exc!r})") from None
         return cls(root, header, plan, rows)
 
     @property

@@ -114,14 +114,15 @@ def training_cells(dataset: Dataset, config: TrainingConfig, views: Views) -> li
 
 def folder_names(labels: Iterable[str]) -> dict[str, str]:
     """A folder name for each variant label: readable (``P-SL (PDS)`` -> ``P-SL_PDS``), and
-    never shared by two labels (``x y`` and ``x/y``) nor outside the output folder (``..``):
-    a name that would be gets a short hash of its label."""
+    never shared by two labels (``x y`` and ``x/y``, or ``PD`` and ``pd`` on a file system that
+    ignores case) nor outside the output folder (``..``): a name that would be gets a short
+    hash of its label."""
     labels = list(labels)
     readable = {label: re.sub(r"[^A-Za-z0-9._-]+", "_", label).strip("_.") for label in labels}
-    taken = Counter(readable.values())
+    taken = Counter(name.lower() for name in readable.values())
     names = {}
     for label, name in readable.items():
-        if not name or taken[name] > 1:
+        if not name or taken[name.lower()] > 1:
             name = f"{name or 'variant'}-{hashlib.blake2b(label.encode(), digest_size=3).hexdigest()}"
         names[label] = name
     return names

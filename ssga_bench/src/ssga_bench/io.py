@@ -104,8 +104,9 @@ def load_npy(path: str | Path, shape: tuple[int, ...], *, what: str) -> np.ndarr
     except (OSError, ValueError, EOFError) as exc:
         warn(f"{path}: damaged {what} ({' '.join(str(exc).split())[:120]}); computing them again")
         return None
-    if array.shape != shape or not np.isfinite(array).all():
-        warn(f"{path}: {what} of shape {array.shape}, expected {shape} and finite; computing them again")
+    # Numbers first: np.isfinite raises on strings or records, which np.load reads as well.
+    if array.dtype.kind not in "biuf" or array.shape != shape or not np.isfinite(array).all():
+        warn(f"{path}: {what} of shape {array.shape} and type {array.dtype}, expected {shape} and finite numbers; computing them again")
         return None
     return array
 

@@ -30,7 +30,9 @@ class VariantSyntaxError(SsgaError, ValueError):
         self.text = text
         self.column = column
         self.reason = reason
-        super().__init__(f"invalid variant {text!r}: column {column}: {reason}")
+        # A variant is a few letters; echo at most the start of a long string.
+        shown = repr(text) if len(text) <= 40 else f"{text[:20]!r}... ({len(text)} characters)"
+        super().__init__(f"invalid variant {shown}: column {column}: {reason}")
 
 
 class PluginError(SsgaError):

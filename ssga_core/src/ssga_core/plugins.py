@@ -55,7 +55,10 @@ class PluginInfo:
     def describe(self) -> str:
         if not self.distribution:
             return f"plugin {self.name!r}"
-        return f"plugin {self.name!r} ({self.distribution} {self.version})"
+        # A module from SSGA_PLUGIN_MODULES has no version and a distribution already in
+        # parentheses: "(SSGA_PLUGIN_MODULES)", not "((SSGA_PLUGIN_MODULES) )".
+        where = " ".join(part for part in (self.distribution.strip("()"), self.version) if part)
+        return f"plugin {self.name!r} ({where})"
 
 
 @dataclass(frozen=True)

@@ -29,9 +29,11 @@ from ssga_core.errors import InputError
 from ssga_core.geometry import Pose
 
 class StageConfig(BaseModel):
-    """Base of every stage's config: unknown keys are errors, instances are immutable."""
+    """Base of every stage's config: unknown keys are errors, instances are immutable, and
+    numbers are finite (an ``inf`` room size or a ``nan`` threshold would validate and
+    then fail deep inside a library)."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
 
 class Stage(ABC):
