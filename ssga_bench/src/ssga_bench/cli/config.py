@@ -15,7 +15,7 @@ from ssga_bench.config import experiment_schema, load_experiment
 config_app = typer.Typer(help="Validate experiment configs and print their schema.", no_args_is_help=True, rich_markup_mode=None)
 
 
-def validate_cli(files: Annotated[list[Path], typer.Argument(help="Experiment configs (TOML).")]) -> None:
+def validate_cli(files: Annotated[list[Path], typer.Argument(metavar="CONFIG...", help="Experiment configs (TOML).")]) -> None:
     """Check configs: shape, every stage's parameters, every variant and its plugins. Exits 1 if any has a problem."""
     registry = current_registry()
     failed = 0

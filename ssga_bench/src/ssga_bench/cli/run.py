@@ -45,15 +45,15 @@ def _run(experiment: Experiment, output: Path | None) -> None:
 
 
 def run_cli(
-    config: Annotated[Path, typer.Argument(help="Experiment config (TOML).")],
-    output: Annotated[Path | None, typer.Option(help="Output folder [default: the config's `output`].")] = None,
+    config: Annotated[Path, typer.Argument(metavar="CONFIG", help="Experiment config (TOML).")],
+    output: Annotated[Path | None, typer.Option(metavar="DIR", help="Output folder [default: the config's `output`].")] = None,
 ) -> None:
     """Run an experiment: build its workspace, train and score every variant, fuse, report."""
     _run(load_experiment(config, current_registry()), output)
 
 
 def demo_cli(
-    output: Annotated[Path | None, typer.Option(help="Output folder [default: runs/demo].")] = None,
+    output: Annotated[Path | None, typer.Option(metavar="DIR", help="Output folder [default: runs/demo].")] = None,
 ) -> None:
     """The paper's eight variants and their ensemble on a small embedded workspace (a few minutes on a laptop CPU)."""
     start = time.perf_counter()
@@ -62,12 +62,12 @@ def demo_cli(
 
 
 def bench_cli(
-    config: Annotated[Path | None, typer.Argument(help="Experiment config [default: the packaged bench.toml].")] = None,
-    seeds: Annotated[str, typer.Option(help="Comma-separated seeds: one workspace, protocol draw and training seed each.")] = "0,1,2",
+    config: Annotated[Path | None, typer.Argument(metavar="CONFIG", show_default=False, help="Experiment config [default: the packaged bench.toml].")] = None,
+    seeds: Annotated[str, typer.Option(metavar="N,N,...", help="Comma-separated seeds: one workspace, protocol draw and training seed each.")] = "0,1,2",
     test_per_class: Annotated[
-        int | None, typer.Option(min=1, help="Override protocol.test_per_class (smaller for a quick run).")
+        int | None, typer.Option(min=1, metavar="N", help="Override protocol.test_per_class (smaller for a quick run).")
     ] = None,
-    output: Annotated[Path | None, typer.Option(help="Output folder [default: the config's `output`].")] = None,
+    output: Annotated[Path | None, typer.Option(metavar="DIR", help="Output folder [default: the config's `output`].")] = None,
 ) -> None:
     """The full protocol on several seeds: Table 1 per seed, the mean over seeds, and where the time goes."""
     from ssga_bench.bench import parse_seeds, run_bench

@@ -33,15 +33,15 @@ def parse_option(text: str) -> tuple[str, Any]:
 
 def build_cli(
     config: Annotated[
-        Path | None, typer.Option("--config", "-c", help="Take the workspace and protocol from this experiment config [default: the demo's].")
+        Path | None, typer.Option("--config", "-c", metavar="FILE", help="Take the workspace and protocol from this experiment config [default: the demo's].")
     ] = None,
-    source: Annotated[str | None, typer.Option(help="Workspace source plugin (`ssga plugins` lists them) [default: the config's].")] = None,
-    option: Annotated[list[str] | None, typer.Option("--option", "-o", help="A parameter of the source, key=value; repeatable.")] = None,
-    seed: Annotated[int | None, typer.Option(min=0, help="Seed of the protocol, and of the source if it has one.")] = None,
-    cells: Annotated[int | None, typer.Option(help="Location cells (classes = cells x 12).")] = None,
-    test_per_class: Annotated[int | None, typer.Option(help="Test views per class (the paper: 1500).")] = None,
-    cell_size: Annotated[float | None, typer.Option(help="Side of a location cell, metres.")] = None,
-    out: Annotated[Path | None, typer.Option(help="Dataset folder [default: runs/workspaces/<workspace>-<settings hash>].")] = None,
+    source: Annotated[str | None, typer.Option(metavar="NAME", help="Workspace source plugin (`ssga plugins` lists them) [default: the config's].")] = None,
+    option: Annotated[list[str] | None, typer.Option("--option", "-o", metavar="KEY=VALUE", help="A parameter of the source, key=value; repeatable.")] = None,
+    seed: Annotated[int | None, typer.Option(min=0, metavar="N", help="Seed of the protocol, and of the source if it has one.")] = None,
+    cells: Annotated[int | None, typer.Option(metavar="N", help="Location cells (classes = cells x 12).")] = None,
+    test_per_class: Annotated[int | None, typer.Option(metavar="N", help="Test views per class (the paper: 1500).")] = None,
+    cell_size: Annotated[float | None, typer.Option(metavar="METRES", help="Side of a location cell, metres.")] = None,
+    out: Annotated[Path | None, typer.Option(metavar="DIR", help="Dataset folder [default: runs/workspaces/<workspace>-<settings hash>].")] = None,
     overwrite: Annotated[bool, typer.Option(help="Replace a dataset built with other settings (only the files ssga wrote).")] = False,
 ) -> None:
     """Plan and render a benchmark workspace; an interrupted build resumes where it stopped."""
@@ -75,9 +75,9 @@ def build_cli(
 
 
 def show_cli(
-    dataset: Annotated[Path, typer.Argument(help="A dataset folder made by `ssga workspace build`.")],
-    colour_by: Annotated[str, typer.Option("--by", help="Colour test cameras by 'class' or 'level'.")] = "class",
-    out: Annotated[Path | None, typer.Option(help="Folder for the pictures [default: the dataset folder].")] = None,
+    dataset: Annotated[Path, typer.Argument(metavar="DATASET", help="A dataset folder made by `ssga workspace build`.")],
+    colour_by: Annotated[str, typer.Option("--by", metavar="class|level", help="Colour test cameras by 'class' or 'level'.")] = "class",
+    out: Annotated[Path | None, typer.Option(metavar="DIR", help="Folder for the pictures [default: the dataset folder].")] = None,
 ) -> None:
     """Draw a bird's-eye plan (walls, cells, cameras and frusta) and a contact sheet of views."""
     from ssga_bench.dataset import Dataset
