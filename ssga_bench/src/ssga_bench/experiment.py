@@ -2,16 +2,14 @@
 
 For each variant:
 
-1. **Training data.** Each cell's one real view gives a graph of its real class (the
-   query path: P and D only). A variant with S also synthesizes, from that real view,
-   ``synthetic_per_class`` graphs of every class of the cell: the class's training
-   viewpoint (the synthesis target, or for the real class the real pose) and jittered
-   copies of it. Variants without S have only the real graphs; each stands for every
-   class of its cell (paper §4.1: they "simply use available training images as they
-   are"), so they tell cells apart but not headings within a cell.
-2. **Fit** the descriptor (a dictionary, a classifier) on the training views, real and
-   synthetic, with their classes.
-3. **Train** the variant's GCN, **score** every test view (query path).
+1. **Training graphs.** This module draws, per cell, the poses of every class's
+   pseudo-training graphs (the class's training viewpoint and ``synthetic_per_class - 1``
+   jittered copies, :func:`training_cells`); the pipeline
+   (:func:`ssga_core.pipeline.training_graphs`) fits the descriptor and builds the
+   graphs as the variant's order says, synthesizing or not. The runner never branches
+   on the order and never calls a stage itself.
+2. **Train** the variant's GCN, **score** every test view (the query path,
+   :func:`ssga_core.pipeline.build_graph`).
 
 Then the fuser combines the variants' class probabilities and every row is evaluated
 per difficulty level (:mod:`ssga_bench.evaluation`).
