@@ -58,20 +58,6 @@ BUILD = ["workspace", "build", "--source", "test-wall", "--option", "size=8", "-
 
 
 @pytest.fixture
-def stand_ins(monkeypatch, ssga_plugin_set):
-    """Make the CLI see the stand-in stages and workspace plus the installed plugins."""
-    from ssga_bench import testing as stand_in_workspaces
-    from ssga_core.testing import stages as stand_in_stages
-
-    ssga_plugin_set.load_entry_points()
-    ssga_plugin_set.register(stand_in_stages, "stand-ins")
-    ssga_plugin_set.register(stand_in_workspaces, "stand-in-workspaces")
-    registry = ssga_plugin_set.registry()
-    monkeypatch.setattr("ssga_core.plugins.default_registry", lambda: registry)
-    return registry
-
-
-@pytest.fixture
 def workdir(tmp_path, monkeypatch, stand_ins):
     """The stand-ins, run from ``tmp_path`` (so the default ``runs/`` lands there), with ``exp.toml``."""
     monkeypatch.chdir(tmp_path)

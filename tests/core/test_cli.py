@@ -26,20 +26,6 @@ name = "rrf"
 """
 
 
-@pytest.fixture
-def stand_ins(monkeypatch, ssga_plugin_set):
-    """Make the CLI see the stand-in stages plus the installed plugins."""
-    from ssga_bench import testing as stand_in_workspaces
-    from ssga_core.testing import stages as stand_in_stages
-
-    ssga_plugin_set.load_entry_points()
-    ssga_plugin_set.register(stand_in_stages, "stand-ins")
-    ssga_plugin_set.register(stand_in_workspaces, "stand-in-workspaces")
-    registry = ssga_plugin_set.registry()
-    monkeypatch.setattr("ssga_core.plugins.default_registry", lambda: registry)
-    return registry
-
-
 def test_variants_list_shows_every_order_and_the_papers_eight():
     result = runner.invoke(app, ["variants", "--list"])
     assert result.exit_code == 0, result.output

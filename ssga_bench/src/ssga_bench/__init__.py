@@ -7,58 +7,44 @@ the ``ssga`` command does for its commands) does not import OpenCV, shapely or t
 
 from __future__ import annotations
 
-import importlib
-from typing import Any
+from ssga_core import lazy_exports
 
 _EXPORTS = {
     # workspaces: what a workspace source plugin returns
-    "FloorPlan": "workspace",
-    "Workspace": "workspace",
-    "CapturedWorkspace": "workspace",
+    "FloorPlan": "ssga_bench.workspace",
+    "Workspace": "ssga_bench.workspace",
+    "CapturedWorkspace": "ssga_bench.workspace",
     # the bag-of-words kit of local descriptors (paper §3.1.2)
-    "BagOfWords": "bow",
-    "BoWConfig": "bow",
-    "BoWDescriptor": "bow",
-    "BoWDescriptorConfig": "bow",
-    "NotFittedError": "bow",
+    "BagOfWords": "ssga_bench.bow",
+    "BoWConfig": "ssga_bench.bow",
+    "BoWDescriptor": "ssga_bench.bow",
+    "BoWDescriptorConfig": "ssga_bench.bow",
+    "NotFittedError": "ssga_bench.bow",
     # files: atomic writes, one-line read errors
-    "OutputError": "io",
-    "atomic_write_bytes": "io",
-    "read_json": "io",
-    "read_jsonl": "io",
-    "write_json": "io",
-    "read_png": "io",
-    "write_png": "io",
-    "depth_from_png16": "io",
-    "depth_to_png16": "io",
-    "ids_from_png16": "io",
-    "ids_to_png16": "io",
+    "OutputError": "ssga_bench.io",
+    "atomic_write_bytes": "ssga_bench.io",
+    "read_json": "ssga_bench.io",
+    "read_jsonl": "ssga_bench.io",
+    "write_json": "ssga_bench.io",
+    "read_png": "ssga_bench.io",
+    "write_png": "ssga_bench.io",
+    "depth_from_png16": "ssga_bench.io",
+    "depth_to_png16": "ssga_bench.io",
+    "ids_from_png16": "ssga_bench.io",
+    "ids_to_png16": "ssga_bench.io",
     # experiments
-    "ExperimentConfig": "config",
-    "Experiment": "config",
-    "TrainingConfig": "config",
-    "load_experiment": "config",
-    "validate_experiment": "config",
-    "ProtocolConfig": "protocol",
-    "Dataset": "dataset",
-    "build_workspace": "dataset",
-    "build_dataset": "dataset",
-    "run_experiment": "experiment",
-    "Report": "evaluation",
+    "ExperimentConfig": "ssga_bench.config",
+    "Experiment": "ssga_bench.config",
+    "TrainingConfig": "ssga_bench.config",
+    "load_experiment": "ssga_bench.config",
+    "validate_experiment": "ssga_bench.config",
+    "ProtocolConfig": "ssga_bench.protocol",
+    "Dataset": "ssga_bench.dataset",
+    "build_workspace": "ssga_bench.dataset",
+    "build_dataset": "ssga_bench.dataset",
+    "run_experiment": "ssga_bench.experiment",
+    "Report": "ssga_bench.evaluation",
 }
 
 __all__ = sorted(_EXPORTS)
-
-
-def __getattr__(name: str) -> Any:
-    module = _EXPORTS.get(name)
-    if module is None:
-        raise AttributeError(f"module 'ssga_bench' has no attribute {name!r}")
-    value = getattr(importlib.import_module(f"ssga_bench.{module}"), name)
-    globals()[name] = value
-    return value
-
-
-def __dir__() -> list[str]:
-    return __all__
-
+__getattr__ = lazy_exports(__name__, _EXPORTS)

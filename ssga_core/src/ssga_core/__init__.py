@@ -21,6 +21,7 @@ from ssga_core.data import Data, LocalFeatures, Regions, SceneGraph, Synthesis, 
 from ssga_core.errors import CheckpointError, ConfigError, InputError, PluginError, SsgaError, VariantSyntaxError
 from ssga_core.geometry import Camera, Pose
 from ssga_core.kinds import KINDS, StageKind
+from ssga_core.lazy import lazy_exports
 from ssga_core.ranking import ranks, reciprocal_ranks
 from ssga_core.stages import (
     Descriptor,
@@ -72,6 +73,7 @@ __all__ = [
     "WorkspaceSource",
     "boxes_from_labels",
     "hookimpl",
+    "lazy_exports",
     "parse_variant",
     "ranks",
     "reciprocal_ranks",

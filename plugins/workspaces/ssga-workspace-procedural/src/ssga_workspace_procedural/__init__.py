@@ -11,8 +11,7 @@ every ``ssga`` command does) does not import trimesh and scikit-image.
 
 from __future__ import annotations
 
-import importlib
-from typing import Any
+from ssga_core import lazy_exports
 
 _EXPORTS = {
     "CATEGORIES": "ssga_workspace_procedural.categories",
@@ -25,9 +24,4 @@ _EXPORTS = {
 }
 
 __all__ = sorted(_EXPORTS)
-
-
-def __getattr__(name: str) -> Any:
-    if name not in _EXPORTS:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    return getattr(importlib.import_module(_EXPORTS[name]), name)
+__getattr__ = lazy_exports(__name__, _EXPORTS)
