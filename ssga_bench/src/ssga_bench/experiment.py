@@ -47,10 +47,9 @@ from ssga_core.data import View
 from ssga_core.errors import SsgaError
 from ssga_core.config import ResolvedVariant
 from ssga_core.geometry import Pose
-from ssga_core.pipeline import BoundVariant, CellTraining, build_graph, training_graphs
+from ssga_core.pipeline import BoundVariant, CellTraining, Progress, build_graph, training_graphs
 from ssga_core.stages import Fuser
 
-Progress = Callable[[str, int, int], None]
 
 
 @dataclass

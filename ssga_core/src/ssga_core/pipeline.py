@@ -148,6 +148,7 @@ class CellTraining:
 
 
 Progress = Callable[[str, int, int], None]
+"""Called with ``(phase, done, total)`` as long work advances (the CLI draws bars)."""
 
 
 def training_graphs(

@@ -69,14 +69,15 @@ def current_registry() -> plugins.Registry:
     return plugins.default_registry()
 
 
-_with_plugin_commands: set[int] = set()
+_plugin_commands_added = False
 
 
 def app_with_plugin_commands(plugin_set: plugins.PluginSet | None = None) -> typer.Typer:
-    """:data:`app` with every plugin's commands attached (once per app)."""
-    if id(app) in _with_plugin_commands:
+    """:data:`app` with every plugin's commands attached (once per process)."""
+    global _plugin_commands_added
+    if _plugin_commands_added:
         return app
-    _with_plugin_commands.add(id(app))
+    _plugin_commands_added = True
     plugin_set = plugin_set or plugins.default_plugins()
     for impl in plugin_set.pm.hook.ssga_register_commands.get_hookimpls():
         try:
