@@ -1,14 +1,28 @@
-"""Top-1, Top-5, MRR per level; the random reference; the report."""
+"""Top-1, Top-5, MRR and Recall@N per group with 95% intervals; the references; the report; the bench summary."""
 
 from __future__ import annotations
 
 import csv
 import io
+import itertools
+import json
 
 import numpy as np
 import pytest
 
-from ssga_bench.evaluation import Report, metrics, random_metrics, truth_ranks
+from ssga_bench.evaluation import (
+    AT_CHANCE,
+    Report,
+    level_groups,
+    mean_interval,
+    metrics,
+    random_metrics,
+    rate_interval,
+    recall_at,
+    t95,
+    truth_ranks,
+    verdict,
+)
 
 
 def test_ranks_and_metrics_by_hand():
@@ -21,35 +35,153 @@ def test_ranks_and_metrics_by_hand():
     assert m["mrr"] == pytest.approx(100 * (1 + 1 / 3 + 1 / 2) / 3)
 
 
+def test_recall_at_n_on_a_hand_made_ranking():
+    ranks = np.array([1, 2, 5, 6, 10, 11, 20, 21, 40, 100])
+    assert [recall_at(ranks, n) for n in (1, 5, 10, 20)] == pytest.approx([10, 30, 50, 70])
+    m = metrics(ranks)
+    assert (m["top1"], m["top5"], m["r10"], m["r20"]) == pytest.approx((10, 30, 50, 70))  # R@1 is Top-1, R@5 Top-5
+    recalls = [recall_at(np.random.default_rng(0).integers(1, 60, 500), n) for n in range(1, 61)]
+    assert all(a <= b for a, b in itertools.pairwise(recalls)) and recalls[-1] == 100
+
+
 def test_random_reference_matches_simulation():
     rng = np.random.default_rng(0)
     ranks = np.concatenate([rng.permutation(120) + 1 for _ in range(2000)])[::120]
     sim, exact = metrics(ranks), random_metrics(120)
     for key in exact:
-        assert sim[key] == pytest.approx(exact[key], abs=1.0)
-    assert exact["top5"] == pytest.approx(100 * 5 / 120)
+        assert sim[key] == pytest.approx(exact[key], abs=1.5)
+    assert exact["top5"] == pytest.approx(100 * 5 / 120) and exact["r20"] == pytest.approx(100 * 20 / 120)
+    assert random_metrics(8)["r10"] == 100  # fewer classes than N: every query is found
 
 
-def test_report_rows_levels_and_outputs():
-    rng = np.random.default_rng(1)
-    truth = rng.integers(0, 10, 60)
-    levels = np.repeat([1, 2, 3], 20)
-    good = np.eye(10)[truth] + 0.1 * rng.random((60, 10))
-    bad = rng.random((60, 10))
-    report = Report.build("ws", {"good": good, "bad": bad}, "Ensemble (RRF)", (good + bad) / 2, truth, levels, 10)
-    assert report.best_single == "good"
+def test_t_quantiles():
+    assert t95(1) == pytest.approx(12.706, abs=1e-3)
+    assert t95(16) == pytest.approx(2.120, abs=2e-3)
+    assert t95(1000) == pytest.approx(1.962, abs=1e-3)
+
+
+@pytest.mark.parametrize("interval", [rate_interval, mean_interval])
+def test_intervals_contain_the_mean_and_shrink_with_n(interval):
+    rng = np.random.default_rng(3)
+    widths = []
+    for n in (20, 200, 2000):
+        values = rng.random(n) < 0.3
+        e = interval(values if interval is rate_interval else 100.0 * values)
+        assert e.n == n and e.low < e.value < e.high
+        assert e.value == pytest.approx(100 * values.mean())
+        widths.append(e.high - e.low)
+    assert widths[0] > widths[1] > widths[2]
+
+
+def test_wilson_interval_is_not_zero_width_at_the_edges():
+    e = rate_interval(np.ones(20, dtype=bool))
+    assert e.value == 100 and e.high == 100 and 80 < e.low < 90
+    assert np.isnan(rate_interval(np.array([], dtype=bool)).value)
+
+
+def _data(seed=1, q=120, c=10):
+    rng = np.random.default_rng(seed)
+    truth = rng.integers(0, c, q)
+    groups = level_groups(np.repeat([1, 2, 3], q // 3)) | {"near": np.arange(q) % 2 == 0, "far": np.arange(q) % 2 == 1}
+    return rng, truth, groups
+
+
+def test_report_rows_groups_and_flags():
+    rng, truth, groups = _data()
+    good = np.eye(10)[truth] + 0.1 * rng.random((120, 10))
+    bad = rng.random((120, 10))
+    report = Report.build(
+        "ws",
+        {"good": good, "bad": bad},
+        truth,
+        groups=groups,
+        num_classes=10,
+        ensemble=("Ensemble (RRF)", (good + bad) / 2),
+        best_single="bad",  # the caller's choice on validation data, kept even where the test views disagree
+        references={"oracle: DS on true renders": np.eye(10)[truth]},
+        flags={"good": "training stopped at the epoch cap"},
+    )
+    assert list(report.rows) == [
+        "good", "bad", "Ensemble (RRF)", "best single (validation): bad", "oracle: DS on true renders", "random"
+    ]  # fmt: skip
+    assert list(report.counts) == ["L1", "L2", "L3", "near", "far", "all"]
+    assert report.counts["L2"] == 40 and report.counts["all"] == 120
+    assert report.best_single == "bad" and report.table["best single (validation): bad"] == report.table["bad"]
     assert report.table["good"]["L2"]["top1"] == 100.0
-    assert report.table["random"]["L1"]["top1"] == pytest.approx(10.0)
-    assert report.counts == {"L1": 20, "L2": 20, "L3": 20, "all": 60}
+    # random: the exact expected values, with no interval
+    rnd = report.rows["random"].stats["near"]["mrr"]
+    assert rnd.value == rnd.low == rnd.high == pytest.approx(random_metrics(10)["mrr"]) and rnd.n == 60
+    # at chance: random scores are, perfect ones are not; the caller's flags are kept
+    assert AT_CHANCE in report.rows["bad"].flags and AT_CHANCE in report.rows["best single (validation): bad"].flags
+    assert report.rows["good"].flags == ("training stopped at the epoch cap",)
+    assert report.rows["oracle: DS on true renders"].flags == ()
     md = report.markdown()
-    assert "| **Ensemble (RRF)** |" in md and "| best single: good |" in md
+    assert "| **Ensemble (RRF)** |" in md and "| good ⚠ | 100.0 ±" in md
+    assert "- good: training stopped at the epoch cap" in md and "- bad: at chance" in md
+    assert "#### By group" in md and "R@10[%] near" in md and "Every group has at least 30 test views." in md
+    assert "Wilson" in md  # the footer says how the intervals were made
+
+
+def test_csv_json_and_plot():
+    rng, truth, groups = _data()
+    scores = np.eye(10)[truth] + rng.random((120, 10))
+    report = Report.build("ws", {"a": scores}, truth, groups=groups, num_classes=10, ensemble=("E", scores))
     rows = list(csv.DictReader(io.StringIO(report.csv())))
-    assert len(rows) == 5 * 4 and {r["level"] for r in rows} == {"L1", "L2", "L3", "all"}
-    png = report.plot()
-    assert png[:8] == b"\x89PNG\r\n\x1a\n"
+    assert len(rows) == 3 * 6  # (a, E, random) x (L1, L2, L3, near, far, all)
+    first = rows[0]
+    assert first["row"] == "a" and first["group"] == "L1" and first["n"] == "40"
+    assert float(first["top1_low"]) <= float(first["top1"]) <= float(first["top1_high"]) and "r20_high" in first
+    data = json.loads(json.dumps(report.to_json()))
+    assert [r["key"] for r in data["rows"]] == ["a", "E", "random"]
+    assert data["rows"][0]["stats"]["all"]["mrr"]["n"] == 120
+    assert report.plot()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
-def test_empty_levels_show_a_dash():
+def test_ensemble_against_each_variant():
+    rng, truth, groups = _data()
+    perfect, noise = np.eye(10)[truth], rng.random((120, 10))
+    report = Report.build("ws", {"same": perfect, "noise": noise}, truth, groups=groups, num_classes=10, ensemble=("E", perfect))
+    same, better = report.compare("same", "L2"), report.compare("noise", "L2")
+    assert same.value == 0 and verdict(same) == "tie"
+    assert better.value > 0 and verdict(better) == "better"
+    md = report.markdown()
+    assert "| noise | +" in md and "- L2: does not beat every variant (better than 1, tie with 1, worse than 0 of 2)" in md
+
+
+def test_thin_and_empty_groups_are_named():
     truth = np.array([0, 1])
-    report = Report.build("ws", {"a": np.eye(2)}, "E", np.eye(2), truth, np.array([1, 1]), 2)
-    assert "| a | 100.0 | – | – |" in report.markdown()
+    groups = level_groups(np.array([1, 1]))
+    report = Report.build("ws", {"a": np.eye(2)}, truth, groups=groups, num_classes=2, ensemble=("E", np.eye(2)))
+    md = report.markdown()
+    assert "| a | 100.0 ±" in md and "| – | – |" in md  # L2 and L3 are empty
+    assert "Too thin to read (n < 30): L1 (n=2), L2 (n=0), L3 (n=0), all (n=2)" in md
+
+
+def test_build_refuses_what_it_cannot_score():
+    truth = np.array([0, 1])
+    kwargs = {"groups": {}, "num_classes": 2, "ensemble": ("E", np.eye(2))}
+    with pytest.raises(ValueError, match="best single 'b' is not a variant"):
+        Report.build("ws", {"a": np.eye(2)}, truth, best_single="b", **kwargs)
+    with pytest.raises(ValueError, match="shape"):
+        Report.build("ws", {"a": np.eye(3)}, truth, **kwargs)
+    with pytest.raises(ValueError, match="flags for rows that do not exist"):
+        Report.build("ws", {"a": np.eye(2)}, truth, flags={"typo": "x"}, **kwargs)
+
+
+def test_bench_summary_over_seeds():
+    from ssga_bench.bench import SeedRun, bench_summary
+
+    runs = {}
+    for seed in (0, 1):
+        rng, truth, groups = _data(seed)
+        good, noise = np.eye(10)[truth] + rng.random((120, 10)), rng.random((120, 10))
+        variants, best = {"good": good, "noise": noise}, ["good", "noise"][seed]
+        report = Report.build("ws", variants, truth, groups=groups, num_classes=10, ensemble=("E", good + noise), best_single=best)
+        runs[seed] = SeedRun(report, {"train": 1.0 + seed, "describe": 4.0}, 10.0)
+    md = bench_summary(runs)
+    mean = mean_interval(np.array([runs[s].report.table["good"]["L1"]["top1"] for s in (0, 1)]))
+    assert f"| good | {mean.text()} |" in md and "t-interval across seeds" in md
+    assert "| best single (validation) |" in md  # one row, whichever variant each seed chose
+    assert "| 0 | 40 | 40 | 40 | 60 | 60 | 120 |" in md
+    assert "seed 1 L3" in md and "| noise | +" in md
+    assert "| train | 1.0 | 2.0 | 15.0 |" in md and "takes 15.0% of wall time: within the target" in md

@@ -9,7 +9,8 @@ import pytest
 
 from ssga_bench.config import TrainingConfig, validate_experiment
 from ssga_bench.dataset import build_dataset
-from ssga_bench.experiment import Timings, Views, run_experiment, training_cells
+from ssga_bench.experiment import Timings, Views, run_experiment, training_plan
+from ssga_bench.protocol import Protocol
 from ssga_bench.protocol import ProtocolConfig
 from ssga_bench.testing import WallWorkspaceSource
 
@@ -44,25 +45,40 @@ def stand_in_registry(ssga_plugin_set):
     return ssga_plugin_set.registry()
 
 
-def test_training_poses_cover_every_class_with_jittered_copies(dataset):
-    config = TrainingConfig(synthetic_per_class=3, jitter_m=0.2, jitter_deg=4)
-    cells = training_cells(dataset, config, Views(dataset, Timings()))
+def test_canonical_poses_are_each_class_viewpoint_and_jittered_copies(dataset):
+    config = TrainingConfig(poses="canonical", sources="own", synthetic_per_class=3, jitter_m=0.2, jitter_deg=4)
+    plan = training_plan(dataset, config, Views(dataset, Timings()))
     reals = {s.place: s for s in dataset.split("train")}
-    assert [c.real_class for c in cells] == list(reals)
+    assert [c.real_class for c in plan.cells] == list(reals)
     viewpoint = {s.place: s.pose for s in dataset.split("train") + dataset.split("target")}
-    for cell in cells:
-        assert cell.real.pose == reals[cell.real_class].pose
-        # Every class of the cell: the real one gets 2 jittered copies, the others their viewpoint and 2 copies.
-        first = cell.real_class - cell.real_class % 12
-        assert sorted(cell.poses) == list(range(first, first + 12))
-        for place, poses in cell.poses.items():
-            assert len(poses) == (2 if place == cell.real_class else 3)
-            v = viewpoint[place]
-            if place != cell.real_class:
-                assert poses[0] == v
-            for pose in poses:
-                assert math.hypot(pose.x - v.x, pose.y - v.y) <= 0.2 + 1e-9
-                assert abs(math.remainder(pose.yaw - v.yaw, 2 * math.pi)) <= math.radians(4) + 1e-9
+    by_place = {}
+    for p, group in zip(plan.pseudo, plan.pose_groups):
+        by_place.setdefault(p.place, []).append((p, group))
+    assert sorted(by_place) == list(range(dataset.num_classes))
+    for place, drawn in by_place.items():
+        # The real class gets 2 jittered copies, the others their viewpoint and 2 copies, all of one pose group.
+        assert len(drawn) == (2 if place in reals else 3)
+        assert len({group for _, group in drawn}) == 1
+        v = viewpoint[place]
+        if place not in reals:
+            assert drawn[0][0].pose == v
+        for p, _ in drawn:
+            assert p.sources == (place // 12,)  # its own cell's real view
+            assert math.hypot(p.pose.x - v.x, p.pose.y - v.y) <= 0.2 + 1e-9
+            assert abs(math.remainder(p.pose.yaw - v.yaw, 2 * math.pi)) <= math.radians(4) + 1e-9
+
+
+def test_class_poses_belong_to_their_class_and_take_every_landmark_that_sees_them(dataset):
+    config = TrainingConfig(poses="class", sources="seen", synthetic_per_class=2, max_sources=3, min_source_coverage=0.0)
+    plan = training_plan(dataset, config, Views(dataset, Timings()))
+    protocol = Protocol(dataset.floor_plan, dataset.camera, dataset.plan.config)
+    assert len(set(plan.pose_groups)) == len(plan.pseudo)  # every pose is its own draw
+    for p in plan.pseudo:
+        cell = protocol.assign(np.array([[p.pose.x, p.pose.y]]), np.array([p.pose.yaw]))[0]
+        assert dataset.plan.cells.index(cell) == p.place // 12
+        assert protocol.orientation_of(p.pose.yaw) == p.place % 12
+        assert p.sources[0] == p.place // 12 and len(set(p.sources)) == len(p.sources) <= 3
+    assert any(len(p.sources) > 1 for p in plan.pseudo)
 
 
 def test_runs_fuses_reports_and_resumes(tmp_path, dataset, stand_in_registry, monkeypatch):
@@ -103,11 +119,11 @@ def test_the_feature_cache_parses_each_real_view_once(tmp_path, dataset, stand_i
 def test_variants_without_s_train_every_class_of_a_cell_on_its_real_graph(tmp_path, dataset, stand_in_registry, monkeypatch):
     seen = {}
 
-    def recording(graphs, labels, num_classes, config, progress=None):
+    def recording(graphs, labels, num_classes, config, progress=None, groups=None):
         seen[len(seen)] = (list(graphs), list(labels))
         from ssga_bench.gcn import train_gcn
 
-        return train_gcn(graphs, labels, num_classes, config)
+        return train_gcn(graphs, labels, num_classes, config, groups=groups)
 
     monkeypatch.setattr("ssga_bench.experiment.train_gcn", recording)
     exp = experiment(stand_in_registry)
@@ -115,6 +131,26 @@ def test_variants_without_s_train_every_class_of_a_cell_on_its_real_graph(tmp_pa
     graphs, labels = seen[1]  # PD, the second variant
     assert sorted(labels) == list(range(dataset.num_classes))
     assert len({id(g) for g in graphs}) == len(dataset.split("train"))  # one real graph per cell, repeated
+    first_run = len(seen)  # the variants and the oracle
     exp = experiment(stand_in_registry, real_for_every_class=False)
     run_experiment(exp, dataset, tmp_path / "real-only")
-    assert sorted(seen[4][1]) == sorted(s.place for s in dataset.split("train"))
+    assert sorted(seen[first_run + 1][1]) == sorted(s.place for s in dataset.split("train"))
+
+
+def test_the_oracle_renders_the_truth_with_an_exact_point_map():
+    from ssga_bench.oracle import TrueRender
+    from ssga_core import Pose
+
+    workspace = WallWorkspaceSource().open()
+    source = workspace.render(Pose(0.0, 0.0, 0.0, workspace.camera_height))
+    same = TrueRender(workspace).synthesize(source, source.pose)
+    np.testing.assert_allclose(same.target_uv[same.visible], source.camera.pixel_grid()[same.visible], atol=1e-3)
+    assert same.visible.mean() > 0.95 and same.view.synthetic
+    # 0.3 m to the right of a wall 3 m ahead (the stand-in's flat wall): content moves 128 * 0.3 / 3 px left.
+    moved = TrueRender(workspace).synthesize(source, Pose(0.0, -0.3, 0.0, workspace.camera_height))
+    shift = moved.target_uv[moved.visible] - source.camera.pixel_grid()[moved.visible]
+    np.testing.assert_allclose(shift, np.broadcast_to([-12.8, 0.0], shift.shape), atol=1e-2)
+    assert 0.9 < moved.visible.mean() < 0.96  # the strip that left the image
+    turned = moved
+    both = TrueRender(workspace).synthesize_from([source, source], turned.view.pose)
+    assert both[0].view is both[1].view  # rendered once for every source

@@ -163,3 +163,48 @@ def test_table_labels_follow_the_papers_notation():
     assert table_label(parse_variant("SPD1"), StripesParser, PatchColour) == "PC-ST (SPD1)"
     assert table_label(parse_variant("DS"), StripesParser, PatchColour) == "PC (DS)"
     assert bind("PDS").label == "PC-ST (PDS)"
+
+
+def test_several_sources_fuse_into_one_view_and_join_what_each_carried():
+    # Two cameras on the same wall, 1 m apart; the target stands between them. Each sees
+    # the wall, so both carry their features and stripes across.
+    left = make_view(seed=3)
+    right = make_view(seed=3, pose=Pose(left.pose.x, left.pose.y - 1.0, left.pose.yaw))
+    target = Pose(left.pose.x, left.pose.y - 0.5, left.pose.yaw)
+    bound = bind("PDS")
+    alone = [build_graph(bound, v, target) for v in (left, right)]
+    both = build_graph(bound, [left, right], target)
+    # Parts of both sources (each keeps the stripes that stay in view), one whole-image node.
+    assert both.num_nodes - 1 == sum(g.num_nodes - 1 for g in alone)
+    syntheses = ShiftWarp().synthesize_from([left, right], target)
+    assert syntheses[0].view is syntheses[1].view  # one fused image
+    fused = syntheses[0].view
+    singles = [ShiftWarp().synthesize(v, target).view for v in (left, right)]
+    assert (fused.depth > 0).sum() >= max((s.depth > 0).sum() for s in singles)
+    # Order S first: the stages after S run once, on the fused view.
+    np.testing.assert_allclose(build_graph(bind("SD"), [left, right], target).features, build_graph(bind("D"), fused).features)
+
+
+def test_a_query_is_built_from_one_view():
+    view = make_view(seed=3)
+    with pytest.raises(InputError, match="one view"):
+        build_graph(bind("PD"), [view, view])
+
+
+def test_fusing_keeps_the_nearest_surface_and_hides_what_is_behind_it():
+    from ssga_core.stages import fuse_syntheses
+    from ssga_core import Synthesis, View
+
+    near_view = make_view(seed=3)
+    h, w = near_view.camera.shape
+    uv = near_view.camera.pixel_grid()
+    everywhere = np.ones((h, w), bool)
+
+    def synthesis(depth, colour):
+        rgb = np.full((h, w, 3), colour, np.uint8)
+        view = View(rgb=rgb, pose=near_view.pose, camera=near_view.camera, depth=np.full((h, w), depth, np.float32), synthetic=True)
+        return Synthesis(view=view, target_uv=uv, visible=everywhere)
+
+    near, far = fuse_syntheses([synthesis(1.0, 200), synthesis(2.0, 50)])
+    assert (near.view.rgb == 200).all() and (near.view.depth == 1.0).all()
+    assert near.visible.all() and not far.visible.any()

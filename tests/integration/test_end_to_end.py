@@ -49,7 +49,7 @@ def test_run_builds_trains_fuses_and_reports(tmp_path, monkeypatch):
     rows = list(csv.DictReader((out / "results.csv").open()))
     labels = {r["row"] for r in rows}
     assert {"SIFT-SL (PDS)", "SIFT (D)", "Ensemble (RRF)", "random"} <= labels
-    test_views = int(next(r for r in rows if r["level"] == "all")["n"])
+    test_views = int(next(r for r in rows if r["group"] == "all")["n"])
     assert test_views == 2 * 12 * 2
     timings = json.loads((out / "timings.json").read_text())
     assert {"parse", "describe", "synthesize", "train"} <= set(timings)
@@ -76,8 +76,8 @@ def test_bench_runs_each_seed_and_summarises(tmp_path, monkeypatch):
     result = CliRunner().invoke(app, ["bench", str(path), "--seeds", "1,2"])
     assert result.exit_code == 0, result.output
     summary = (tmp_path / "bench" / "bench.md").read_text()
-    assert "## Mean over seeds 1, 2 (± std)" in summary
-    assert "- seed 2 L3: ensemble" in summary
+    assert "## Mean over seeds 1, 2 (± 95% t-interval across seeds)" in summary
+    assert "| ensemble − variant | seed 1 L2 | seed 1 L3 | seed 2 L2 | seed 2 L3 |" in summary
     assert "| parse |" in summary and "| **wall** |" in summary
     data = json.loads((tmp_path / "bench" / "bench.json").read_text())
     assert set(data) == {"1", "2"}

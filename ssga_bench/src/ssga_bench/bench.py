@@ -17,7 +17,7 @@ import numpy as np
 from ssga_core.errors import InputError
 from ssga_core.plugins import Registry
 from ssga_bench.config import Experiment, validate_experiment
-from ssga_bench.evaluation import LEVELS, METRICS, Report
+from ssga_bench.evaluation import METRIC_TITLES, METRICS, THIN, Estimate, Report, difference_text, mean_interval
 from ssga_bench.experiment import Progress, run
 from ssga_bench.io import atomic_write_bytes, writable_folder, write_json
 
@@ -87,38 +87,97 @@ def run_bench(
     return summary, runs
 
 
-def bench_summary(runs: dict[int, SeedRun]) -> str:
-    """Markdown: mean (± std) of every row over seeds, the ensemble against each single variant, seconds per phase."""
+TRAIN_SHARE_TARGET = 15.0
+"""Percent of wall time the GCN training phase should stay under."""
+
+
+def seeds_estimate(estimates: Sequence[Estimate]) -> Estimate:
+    """Mean over seeds with a 95% t-interval across them; one seed: its own per-query interval.
+
+    Across seeds rather than pooled queries: the seeds differ in their training and test
+    draws, and that spread is what a rerun would see.
+    """
+    present = [e for e in estimates if not np.isnan(e.value)]  # a seed whose draw left a group empty
+    if len(present) == 1:
+        return present[0]
+    return mean_interval(np.array([e.value for e in present]))
+
+
+def _seed_table(runs: dict[int, SeedRun]) -> list[str]:
     seeds = sorted(runs)
-    first = runs[seeds[0]].report
-    rows = [r for r in first.table if not r.startswith("best single")]
-    head = "| | " + " | ".join(f"{m} {lv}" for m in METRICS for lv in LEVELS) + " |"
-    lines = [f"## Mean over seeds {', '.join(map(str, seeds))} (± std)", "", head, "|---|" + "---:|" * (len(METRICS) * len(LEVELS))]
-    for row in rows:
+    groups = runs[seeds[0]].report.levels
+    # Rows by their key across seeds (the best single variant's label changes with the seed).
+    keyed = [{row.key: row for row in runs[s].report.rows.values()} for s in seeds]
+    kinds = {key: row.kind for rows in keyed for key, row in rows.items()}
+    head = "| | " + " | ".join(f"{METRIC_TITLES[m]} {g}" for m in METRICS for g in groups) + " |"
+    lines = [head, "|---|" + "---:|" * (len(METRICS) * len(groups))]
+    for key, kind in kinds.items():
+        per_seed = [rows[key].stats for rows in keyed if key in rows]
+        cells = [seeds_estimate([stats[g][m] for stats in per_seed if g in stats]).text() for m in METRICS for g in groups]
+        name = f"**{key}**" if kind == "ensemble" else key
+        lines.append(f"| {name} | " + " | ".join(cells) + " |")
+    return lines
+
+
+def _ensemble_lines(runs: dict[int, SeedRun], groups: Sequence[str] = ("L2", "L3")) -> list[str]:
+    seeds = sorted(runs)
+    variants = list(dict.fromkeys(v for s in seeds for v in runs[s].report.variants))
+    head = "| ensemble − variant | " + " | ".join(f"seed {s} {g}" for s in seeds for g in groups) + " |"
+    lines = [head, "|---|" + "---:|" * (len(seeds) * len(groups))]
+    wins: dict[str, list[bool]] = {g: [] for g in groups}
+    for v in variants:
         cells = []
-        for m in METRICS:
-            for lv in LEVELS:
-                values = np.array([runs[s].report.table[row][lv][m] for s in seeds])
-                values = values[~np.isnan(values)]  # a seed whose draw left a level empty
-                if not len(values):
+        for s in seeds:
+            report = runs[s].report
+            for g in groups:
+                if v not in report.variants:
                     cells.append("–")
                     continue
-                spread = f" ± {values.std(ddof=1):.1f}" if len(values) > 1 else ""
-                cells.append(f"{values.mean():.1f}{spread}")
-        lines.append(f"| {row} | " + " | ".join(cells) + " |")
-    ens = first.ensemble
-    lines += ["", "## Ensemble vs every single variant (MRR, per seed)", ""]
-    for s in seeds:
-        t = runs[s].report.table
-        for lv in ("L2", "L3"):
-            best = max(first.variants, key=lambda v: t[v][lv]["mrr"])
-            margin = t[ens][lv]["mrr"] - t[best][lv]["mrr"]
-            lines.append(f"- seed {s} {lv}: ensemble {t[ens][lv]['mrr']:.1f} vs best single {best} {t[best][lv]['mrr']:.1f} ({margin:+.1f})")
+                d = report.compare(v, g)
+                cells.append(difference_text(d))
+                if not np.isnan(d.value):
+                    wins[g].append(d.value > 0)
+        lines.append(f"| {v} | " + " | ".join(cells) + " |")
+    lines.append("")
+    for g, won in wins.items():
+        lines.append(f"- {g}: the ensemble's MRR is higher in {sum(won)} of {len(won)} (variant, seed) pairs")
+    return lines
+
+
+def _phase_lines(runs: dict[int, SeedRun]) -> list[str]:
+    seeds = sorted(runs)
     phases = sorted({p for s in seeds for p in runs[s].seconds})
-    lines += ["", "## Seconds per phase", "", "| phase | " + " | ".join(f"seed {s}" for s in seeds) + " |", "|---|" + "---:|" * len(seeds)]
+
+    def share(s: int, p: str) -> float:
+        return 100 * runs[s].seconds.get(p, 0.0) / runs[s].wall if runs[s].wall > 0 else float("nan")
+
+    head = "| phase | " + " | ".join(f"seed {s} [s]" for s in seeds) + " | share of wall [%] (mean) |"
+    lines = [head, "|---|" + "---:|" * (len(seeds) + 1)]
     for p in phases:
-        lines.append(f"| {p} | " + " | ".join(f"{runs[s].seconds.get(p, 0.0):.1f}" for s in seeds) + " |")
-    lines.append("| **wall** | " + " | ".join(f"{runs[s].wall:.1f}" for s in seeds) + " |")
+        seconds = " | ".join(f"{runs[s].seconds.get(p, 0.0):.1f}" for s in seeds)
+        lines.append(f"| {p} | {seconds} | {np.mean([share(s, p) for s in seeds]):.1f} |")
+    lines.append("| **wall** | " + " | ".join(f"{runs[s].wall:.1f}" for s in seeds) + " | 100 |")
+    train = float(np.mean([share(s, "train") for s in seeds]))
+    verdict_ = "within" if train <= TRAIN_SHARE_TARGET else "over"
+    target = f"{verdict_} the target of ≤ {TRAIN_SHARE_TARGET:.0f}%"
+    lines += ["", f"GCN training (`train`) takes {train:.1f}% of wall time: {target}."]
+    return lines
+
+
+def bench_summary(runs: dict[int, SeedRun]) -> str:
+    """Markdown: every row's mean over seeds with a 95% interval, test views per level, the ensemble
+    against each single variant per seed at L2 and L3, and seconds per phase with their share of wall time."""
+    seeds = sorted(runs)
+    reports = {s: runs[s].report for s in seeds}
+    groups = list(dict.fromkeys(g for r in reports.values() for g in r.counts))
+    interval = "95% t-interval across seeds" if len(seeds) > 1 else "one seed: 95% per-query intervals"
+    lines = [f"## Mean over seeds {', '.join(map(str, seeds))} (± {interval})", "", *_seed_table(runs), ""]
+    lines += ["## Test views per group", "", "| seed | " + " | ".join(groups) + " |", "|---|" + "---:|" * len(groups)]
+    lines += [f"| {s} | " + " | ".join(str(r.counts.get(g, 0)) for g in groups) + " |" for s, r in reports.items()]
+    thin = sorted({f"{g} (seed {s}: n={n})" for s, r in reports.items() for g, n in r.thin_groups().items()})
+    if thin:
+        lines += ["", f"Too thin to read (n < {THIN}): " + ", ".join(thin)]
+    lines += ["", "## Ensemble vs every single variant (MRR, percentage points, paired 95% interval per seed)", ""]
+    lines += _ensemble_lines(runs)
+    lines += ["", "## Seconds per phase", "", *_phase_lines(runs)]
     return "\n".join(lines) + "\n"
-
-

@@ -3,8 +3,8 @@
 Keys are a hash of the view's content (its arrays) and of the stage's name and config,
 so a cache folder can be shared by runs and variants: the eight variants of one
 experiment parse and describe each real query image once, and a resumed or repeated
-run reuses everything. Entries are ``.npz`` files written atomically; synthetic views
-are never cached (each is made once).
+run reuses everything. Entries are ``.npz`` files written atomically; those of synthetic
+views are kept in memory only, for the variants of one run that render the same view.
 """
 
 from __future__ import annotations
@@ -78,7 +78,12 @@ class FeatureCache:
 
     def _cached(self, stage: Stage, view: View, compute: Callable[[View], T], pack: Callable[[T], dict[str, np.ndarray]], unpack: Callable[[dict[str, np.ndarray]], T]) -> T:
         if view.synthetic:
-            return compute(view)
+            # Kept in memory only, for the run: variants that render the same pseudo-view
+            # (SD, SPD and DSP share their syntheses) describe and parse it once.
+            key = (stage_key(stage), view_key(view))
+            if key not in self._memory:
+                self._memory[key] = pack(compute(view))
+            return unpack(self._memory[key])  # type: ignore[arg-type]
         key, value = self._load(stage, view, unpack)
         if value is None:
             arrays = pack(compute(view))

@@ -53,26 +53,81 @@ class TrainingConfig(Strict):
 
     hidden: int = Field(default=256, gt=0, le=8192, description="Hidden width of the GCN.")
     layers: int = Field(default=2, ge=1, le=32, description="Graph-convolution layers.")
-    dropout: float = Field(default=0.5, ge=0.0, lt=1.0)
-    readout: Literal["mean", "weighted"] = Field(
-        default="mean", description="Pool node states by their mean, or by their node weights (whole image 1, parts 1/K)."
+    dropout: float = Field(default=0.0, ge=0.0, lt=1.0, description="Dropout on the hidden node states and on the pooled state.")
+    readout: Literal["image+parts", "mean", "weighted"] = Field(
+        default="image+parts",
+        description="'image+parts': the whole image's state beside the weighted mean of the parts' states; 'mean' / "
+        "'weighted': all nodes pooled by count / by node weight (whole image 1, parts 1/K).",
     )
-    epochs: int = Field(default=200, gt=0, le=100_000)
+    node_weights: Literal["input", "readout"] = Field(
+        default="input",
+        description="Where the node weights (whole image 1, parts 1/K, paper 3.2) act: 'input' scales the standardised "
+        "node features by them (the paper); 'readout' only weighs the parts in the readout.",
+    )
+    epochs: int = Field(default=200, gt=0, le=100_000, description="Most epochs; early stopping should end training before.")
+    batch_size: int = Field(default=64, gt=0, le=1_000_000, description="Graphs per optimiser step.")
+    threads: int = Field(
+        default=1,
+        ge=0,
+        le=1024,
+        description="Torch threads while training (0: torch's default, every core). Two are ~1.5x faster on an idle 2-core "
+        "machine and several times slower while another process holds a core.",
+    )
     lr: float = Field(default=1e-3, gt=0.0, le=10.0)
-    weight_decay: float = Field(default=5e-4, ge=0.0, le=10.0)
-    patience: int = Field(default=20, gt=0, le=100_000, description="Epochs without validation improvement before stopping.")
-    validation_fraction: float = Field(default=0.2, gt=0.0, lt=1.0, description="Share of training graphs held out for early stopping.")
-    synthetic_per_class: int = Field(
-        default=4, gt=0, le=1000, description="Synthetic graphs per class (variants with S): the target and jittered copies."
+    weight_decay: float = Field(default=5e-4, ge=0.0, le=10.0, description="L2 penalty on the weights (Adam's weight_decay).")
+    patience: int = Field(
+        default=20,
+        gt=0,
+        le=100_000,
+        description="Epochs without a better validation loss (training loss, lacking one) before stopping.",
     )
-    jitter_m: float = Field(default=0.15, ge=0.0, le=5.0, description="Jittered copies move up to this far from the training viewpoint, metres.")
+    validation_fraction: float = Field(default=0.2, gt=0.0, lt=1.0, description="Share of training graphs held out for early stopping.")
+    synthetic_per_class: int = Field(default=4, gt=0, le=1000, description="Pseudo-training graphs per class (variants with S).")
+    poses: Literal["class", "canonical"] = Field(
+        default="class",
+        description="Where pseudo-views stand: 'class' draws them over the region of poses that belong to the class, the "
+        "way test views are drawn; 'canonical' (the paper's reading) puts the first at the class's training viewpoint and "
+        "the rest jittered around it.",
+    )
+    jitter_m: float = Field(default=0.15, ge=0.0, le=5.0, description="poses = 'canonical': jittered copies move up to this far, metres.")
     jitter_deg: float = Field(default=5.0, ge=0.0, le=180.0, description="...and turn up to this much, degrees.")
+    sources: Literal["seen", "own"] = Field(
+        default="seen",
+        description="Which real views a pseudo-view is synthesized from: 'own' (the paper) its cell's one real view; 'seen' "
+        "its cell's view fused with every other cell's real view that sees its content (see min_source_coverage).",
+    )
+    max_sources: int = Field(default=4, ge=1, le=64, description="sources = 'seen': at most this many real views per pseudo-view.")
+    min_source_coverage: float = Field(
+        default=0.2,
+        ge=0.0,
+        le=1.0,
+        description="sources = 'seen': another cell's real view joins if it sees at least this share of the floor the pseudo-view sees.",
+    )
     real_for_every_class: bool = Field(
         default=True,
         description="Variants without S train each class of a cell on the cell's real graph (the paper: they 'simply use "
         "available training images as they are'); false trains them on the real classes only.",
     )
     seed: int = Field(default=0, ge=0, lt=2**32, description="Seed of the jittered poses and of the GCN's training.")
+
+
+class EnsembleConfig(Strict):
+    """How the variants are fused and what the report sets beside them."""
+
+    model_config = ConfigDict(allow_inf_nan=False)
+
+    members: Literal["all", "validation"] = Field(
+        default="all",
+        description="Variants fused: 'all' (the paper), or those chosen on the validation views by forward selection "
+        "(needs protocol.val_per_class > 0; the other is reported beside it).",
+    )
+    oracle: list[str] = Field(
+        default_factory=lambda: ["SD"],
+        max_length=16,
+        description="Variants (orders, e.g. 'SD') also trained on true renders at the same poses, as an oracle row, "
+        "where the workspace renders any pose. SD describes the whole true render; DS only what the landmark saw of it.",
+    )
+    queries_to_draw: int = Field(default=10, ge=0, le=10_000, description="Pictures of sample queries beside their classes' views.")
 
 
 class ExperimentConfig(VariantsConfig):
@@ -82,6 +137,7 @@ class ExperimentConfig(VariantsConfig):
     protocol: ProtocolConfig = ProtocolConfig()
     training: TrainingConfig = TrainingConfig()
     fuser: FuserRef | None = Field(default=None, description="The late-fusion rule [default: defaults.toml's].")  # type: ignore[valid-type]
+    ensemble: EnsembleConfig = EnsembleConfig()
     output: Path = Field(default=Path("runs/experiment"), description="Folder for caches, checkpoints and reports (relative: to the current directory).")
 
 

@@ -276,6 +276,10 @@ class Dataset:
     def split(self, split: str) -> list[Sample]:
         return self.plan.split(split)  # type: ignore[arg-type]
 
+    def has_image(self, sample: Sample) -> bool:
+        """Whether the dataset holds the sample's image (a captured workspace's synthesis targets have none)."""
+        return (self._rows.get(sample.id) or {}).get("rgb") is not None
+
     def view(self, sample: Sample) -> View:
         """Load a sample's view (RGB, depth, semantic and instance ids)."""
         row = self._rows.get(sample.id)

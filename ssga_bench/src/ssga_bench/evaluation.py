@@ -1,23 +1,129 @@
-"""Scoring rankings as the paper does (§4.2): Top-1, Top-5 and MRR per difficulty level, in percent.
+"""Scoring rankings as the paper does (§4.2), with the uncertainty the paper leaves out.
 
-Also the two references every table needs: a random ranking (its expected scores,
-exactly) and the best single variant (by MRR over all test views).
+Every scored row (each variant, the ensemble, references such as a nearest-neighbour
+baseline or an oracle) is scored per group of test views (the difficulty levels L1,
+L2, L3, any other groups the caller passes, such as near/far, and all views) by:
+
+* Top-1, Top-5 and MRR (the paper's Table 1), in percent;
+* Recall@N, the share of queries whose true class ranks N or better (one true class
+  per query), for N = 10 and 20; R@1 is Top-1 and R@5 is Top-5, so they are not repeated.
+
+Each value comes with n and a 95% interval: a Wilson score interval for the rates
+(Top-k, Recall@N: it stays inside 0-100% and is not zero-width at 0% or 100%), a
+t-interval on the per-query reciprocal ranks for MRR. The ensemble is compared with each
+variant on the same queries (a paired t-interval on the per-query differences).
+
+Two references need no scores: ``random`` (the exact expected values of a uniformly
+random ranking) and the best single variant, chosen by the caller on validation data:
+choosing it here, on the test views, would flatter it.
 """
 
 from __future__ import annotations
 
 import csv
 import io
+import math
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from typing import Any, Literal
 
 import numpy as np
 
 from ssga_core.ranking import ranks
 
 METRICS = ("top1", "top5", "mrr")
-METRIC_TITLES = {"top1": "Top-1[%]", "top5": "Top-5[%]", "mrr": "MRR[%]"}
+"""Table 1's metrics."""
+RECALLS = ("r10", "r20")
+ALL_METRICS = METRICS + RECALLS
+CUTOFFS = {"top1": 1, "top5": 5, "r10": 10, "r20": 20}
+"""The rate metrics: the share of queries whose true class ranks this or better."""
+METRIC_TITLES = {"top1": "Top-1[%]", "top5": "Top-5[%]", "mrr": "MRR[%]", "r10": "R@10[%]", "r20": "R@20[%]"}
 LEVELS = ("L1", "L2", "L3", "all")
+THIN = 30
+"""Groups with fewer test views than this are reported as too thin to read."""
+AT_CHANCE = "at chance"
+INTERVALS = (
+    "95% intervals: Wilson score for Top-k and Recall@N, t-interval on the per-query reciprocal ranks for MRR, "
+    "paired t-interval on the per-query differences for the ensemble comparison; ± is half the interval's width "
+    "(Wilson intervals are asymmetric: the exact bounds are in results.csv)."
+)
+
+Z95 = 1.959963984540054
+_T95 = (12.706, 4.303, 3.182, 2.776, 2.571, 2.447, 2.365, 2.306, 2.262, 2.228, 2.201, 2.179, 2.160, 2.145, 2.131)
+"""Two-sided 95% quantiles of Student's t for 1..15 degrees of freedom (no scipy needed)."""
+
+
+def t95(df: int) -> float:
+    """Two-sided 95% quantile of Student's t with ``df`` degrees of freedom."""
+    if df < 1:
+        return math.nan
+    if df <= len(_T95):
+        return _T95[df - 1]
+    # Cornish-Fisher expansion around the normal quantile: within 0.001 of the table beyond 15.
+    z = Z95
+    return z + (z**3 + z) / (4 * df) + (5 * z**5 + 16 * z**3 + 3 * z) / (96 * df**2)
+
+
+@dataclass(frozen=True)
+class Estimate:
+    """A value with its 95% interval and the number of values behind it."""
+
+    value: float
+    low: float
+    high: float
+    n: int
+
+    @property
+    def half_width(self) -> float:
+        return (self.high - self.low) / 2
+
+    def contains(self, x: float) -> bool:
+        return bool(self.low <= x <= self.high)
+
+    def text(self, signed: bool = False) -> str:
+        """``12.3 ±4.5`` (``+12.3 ±4.5`` if ``signed``); ``–`` without a value; the bare value
+        without an interval (an exact value, or fewer than two queries)."""
+        if math.isnan(self.value):
+            return "–"
+        value = f"{self.value:+.1f}" if signed else f"{self.value:.1f}"
+        if math.isnan(self.half_width) or self.half_width == 0:
+            return value
+        return f"{value} ±{self.half_width:.1f}"
+
+    def to_json(self) -> dict[str, Any]:
+        return {"value": _finite(self.value), "low": _finite(self.low), "high": _finite(self.high), "n": self.n}
+
+
+def _finite(x: float) -> float | None:
+    return None if math.isnan(x) else round(float(x), 6)
+
+
+def exact(value: float, n: int) -> Estimate:
+    return Estimate(value, value, value, n)
+
+
+def mean_interval(values: np.ndarray) -> Estimate:
+    """Mean of ``values`` with its 95% t-interval (no interval below two values)."""
+    values = np.asarray(values, dtype=np.float64)
+    n = len(values)
+    if n == 0:
+        return Estimate(math.nan, math.nan, math.nan, 0)
+    mean = float(values.mean())
+    half = t95(n - 1) * float(values.std(ddof=1)) / math.sqrt(n) if n > 1 else math.nan
+    return Estimate(mean, mean - half, mean + half, n)
+
+
+def rate_interval(hits: np.ndarray) -> Estimate:
+    """Share of true ``hits``, in percent, with its 95% Wilson score interval."""
+    hits = np.asarray(hits, dtype=bool)
+    n = len(hits)
+    if n == 0:
+        return Estimate(math.nan, math.nan, math.nan, 0)
+    p = float(hits.mean())
+    centre = (p + Z95**2 / (2 * n)) / (1 + Z95**2 / n)
+    half = Z95 * math.sqrt(p * (1 - p) / n + Z95**2 / (4 * n * n)) / (1 + Z95**2 / n)
+    # Clipped to p: the bounds' rounding error must not leave 0% or 100% outside its own interval.
+    return Estimate(100 * p, 100 * min(p, centre - half), 100 * max(p, centre + half), n)
 
 
 def truth_ranks(scores: np.ndarray, truth: np.ndarray) -> np.ndarray:
@@ -26,99 +132,316 @@ def truth_ranks(scores: np.ndarray, truth: np.ndarray) -> np.ndarray:
     return ranks(scores, axis=-1)[np.arange(len(truth)), np.asarray(truth)]
 
 
-def metrics(rank: np.ndarray) -> dict[str, float]:
+def per_query(rank: np.ndarray, metric: str) -> np.ndarray:
+    """Each query's contribution to ``metric``, in percent: 100 / rank for MRR, 100 or 0 for a rate."""
     rank = np.asarray(rank, dtype=np.float64)
-    if not len(rank):
-        return {m: float("nan") for m in METRICS}
-    return {"top1": 100 * float(np.mean(rank <= 1)), "top5": 100 * float(np.mean(rank <= 5)), "mrr": 100 * float(np.mean(1.0 / rank))}
+    return 100.0 / rank if metric == "mrr" else 100.0 * (rank <= CUTOFFS[metric])
+
+
+def recall_at(rank: np.ndarray, n: int) -> float:
+    """Recall@n in percent: the share of queries whose true class ranks ``n`` or better."""
+    rank = np.asarray(rank)
+    return 100 * float(np.mean(rank <= n)) if len(rank) else math.nan
+
+
+def estimates(rank: np.ndarray) -> dict[str, Estimate]:
+    """Every metric of these ranks of the true class, with its interval."""
+    rank = np.asarray(rank)
+    return {m: mean_interval(per_query(rank, m)) if m == "mrr" else rate_interval(rank <= CUTOFFS[m]) for m in ALL_METRICS}
+
+
+def metrics(rank: np.ndarray) -> dict[str, float]:
+    """Every metric of these ranks of the true class (NaN for no query)."""
+    return {m: e.value for m, e in estimates(rank).items()}
 
 
 def random_metrics(num_classes: int) -> dict[str, float]:
     """Expected scores of a uniformly random ranking of ``num_classes`` classes."""
     harmonic = float(np.sum(1.0 / np.arange(1, num_classes + 1)))
-    return {"top1": 100 / num_classes, "top5": 100 * min(5, num_classes) / num_classes, "mrr": 100 * harmonic / num_classes}
+    rates = {m: 100 * min(n, num_classes) / num_classes for m, n in CUTOFFS.items()}
+    return rates | {"mrr": 100 * harmonic / num_classes}
 
 
-Table = dict[str, dict[str, dict[str, float]]]
-"""row label -> level -> metric -> value."""
+def level_groups(levels: np.ndarray) -> dict[str, np.ndarray]:
+    """``{"L1": mask, "L2": mask, "L3": mask}`` of the test views' difficulty levels."""
+    levels = np.asarray(levels)
+    return {f"L{k}": levels == k for k in (1, 2, 3)}
 
 
-def score_rows(scores: Mapping[str, np.ndarray], truth: np.ndarray, levels: np.ndarray) -> Table:
-    """Metrics per level (and over all test views) of each row's ``(Q, C)`` scores."""
-    table: Table = {}
-    for label, s in scores.items():
-        r = truth_ranks(s, truth)
-        table[label] = {f"L{k}": metrics(r[levels == k]) for k in (1, 2, 3)} | {"all": metrics(r)}
-    return table
+Stats = dict[str, dict[str, Estimate]]
+"""group -> metric -> estimate."""
 
 
-def _cell(value: float) -> str:
-    return "–" if np.isnan(value) else f"{value:.1f}"
+def group_estimates(rank: np.ndarray, groups: Mapping[str, np.ndarray]) -> Stats:
+    """Every metric per group of queries, of these ranks of the true class."""
+    return {g: estimates(rank[mask]) for g, mask in groups.items()}
+
+
+def score_rows(scores: Mapping[str, np.ndarray], truth: np.ndarray, groups: Mapping[str, np.ndarray]) -> dict[str, Stats]:
+    """Every metric per group of each row's ``(Q, C)`` scores."""
+    return {label: group_estimates(truth_ranks(s, truth), groups) for label, s in scores.items()}
+
+
+def verdict(difference: Estimate) -> str:
+    """``better``/``worse`` where the interval of a difference excludes zero, else ``tie``."""
+    if math.isnan(difference.value):
+        return "–"
+    return "better" if difference.low > 0 else "worse" if difference.high < 0 else "tie"
+
+
+def difference_text(difference: Estimate) -> str:
+    """``+1.2 ±0.8 better``; ``–`` for no queries."""
+    return "–" if math.isnan(difference.value) else f"{difference.text(signed=True)} {verdict(difference)}"
+
+
+Kind = Literal["variant", "ensemble", "best single", "reference", "random"]
 
 
 @dataclass(frozen=True)
+class Row:
+    label: str
+    kind: Kind
+    stats: Stats
+    flags: tuple[str, ...] = ()
+    source: str | None = None
+    """Best single: the variant it repeats."""
+
+    @property
+    def key(self) -> str:
+        """The row's name across seeds: the best single variant may differ from seed to seed."""
+        return self.label.partition(": ")[0] if self.kind == "best single" else self.label
+
+
+@dataclass(frozen=True, eq=False)
 class Report:
-    """A Table-1-style result: variant rows, the ensemble, the best single variant, random."""
+    """A Table-1-style result: variant rows, the ensemble, the best single variant, references, random."""
 
     title: str
-    table: Table
+    rows: dict[str, Row]
     counts: dict[str, int]
-    """Test views per level."""
-    variants: Sequence[str]
-    ensemble: str
-    best_single: str
+    """Test views per group, ``all`` last."""
+    num_classes: int
+    true_ranks: dict[str, np.ndarray] = field(repr=False)
+    """Rank of the true class per query, for every scored row."""
+    masks: dict[str, np.ndarray] = field(repr=False)
 
     @classmethod
-    def build(cls, title: str, variant_scores: Mapping[str, np.ndarray], ensemble_label: str, fused: np.ndarray, truth: np.ndarray, levels: np.ndarray, num_classes: int) -> Report:
-        table = score_rows({**variant_scores, ensemble_label: fused}, truth, levels)
-        best = max(variant_scores, key=lambda label: table[label]["all"]["mrr"])
-        table[f"best single: {best}"] = table[best]
-        rnd = random_metrics(num_classes)
-        table["random"] = {level: dict(rnd) for level in LEVELS}
-        counts = {f"L{k}": int(np.sum(levels == k)) for k in (1, 2, 3)} | {"all": int(len(levels))}
-        return cls(title, table, counts, list(variant_scores), ensemble_label, best)
+    def build(
+        cls,
+        title: str,
+        variant_scores: Mapping[str, np.ndarray],
+        truth: np.ndarray,
+        *,
+        groups: Mapping[str, np.ndarray],
+        num_classes: int,
+        ensemble: tuple[str, np.ndarray],
+        best_single: str | None = None,
+        best_single_basis: str = "validation",
+        references: Mapping[str, np.ndarray] | None = None,
+        flags: Mapping[str, str] | None = None,
+    ) -> Report:
+        """Score every row.
+
+        Args:
+            variant_scores: ``(Q, C)`` scores of each variant on the test views.
+            truth: ``(Q,)`` true class of each test view.
+            groups: ``(Q,)`` boolean masks of test views, in display order (``L1``, ``L2``,
+                ``L3`` for Table 1, then e.g. ``near``, ``far``); ``all`` is added.
+            ensemble: the fused row's label and ``(Q, C)`` scores.
+            best_single: the variant chosen on ``best_single_basis`` data, repeated as
+                ``best single (<basis>): <label>``; None for no such row.
+            references: further ``(Q, C)`` rows (baselines, oracles), shown after the ensemble.
+            flags: a warning per row label, shown beside it; ``at chance`` is added to
+                every scored row whose all-views MRR interval holds the random MRR.
+        """
+        references, flags = dict(references or {}), dict(flags or {})
+        truth = np.asarray(truth)
+        ens_label, fused = ensemble
+        scored = {**variant_scores, ens_label: fused, **references}
+        if len(scored) != len(variant_scores) + 1 + len(references):
+            raise ValueError(
+                f"row labels must differ: variants {list(variant_scores)}, ensemble {ens_label!r}, references {list(references)}"
+            )
+        for label, s in scored.items():
+            if np.shape(s) != (len(truth), num_classes):
+                raise ValueError(f"row {label!r}: scores of shape {np.shape(s)}, expected {(len(truth), num_classes)}")
+        if best_single is not None and best_single not in variant_scores:
+            raise ValueError(f"best single {best_single!r} is not a variant: {list(variant_scores)}")
+        unknown = set(flags) - set(scored)
+        if unknown:
+            raise ValueError(f"flags for rows that do not exist: {sorted(unknown)}")
+        masks = {g: np.asarray(m, dtype=bool) for g, m in groups.items() if g != "all"} | {"all": np.ones(len(truth), dtype=bool)}
+        for g, m in masks.items():
+            if m.shape != truth.shape:
+                raise ValueError(f"group {g!r}: mask of shape {m.shape}, expected {truth.shape}")
+
+        rank = {label: truth_ranks(s, truth) for label, s in scored.items()}
+        stats = {label: group_estimates(r, masks) for label, r in rank.items()}
+        counts = {g: int(m.sum()) for g, m in masks.items()}
+        chance = random_metrics(num_classes)
+
+        def row(label: str, kind: Kind, source: str | None = None) -> Row:
+            of = source or label
+            at_chance = (AT_CHANCE,) if stats[of]["all"]["mrr"].contains(chance["mrr"]) else ()
+            return Row(label, kind, stats[of], tuple(f for f in (flags.get(of),) if f) + at_chance, source)
+
+        rows = [row(v, "variant") for v in variant_scores] + [row(ens_label, "ensemble")]
+        if best_single is not None:
+            rows.append(row(f"best single ({best_single_basis}): {best_single}", "best single", best_single))
+        rows += [row(r, "reference") for r in references]
+        rows.append(Row("random", "random", {g: {m: exact(v, counts[g]) for m, v in chance.items()} for g in masks}))
+        return cls(title, {r.label: r for r in rows}, counts, num_classes, rank, masks)
+
+    # -- what the rows are -----------------------------------------------------------
+
+    def labels(self, *kinds: Kind) -> list[str]:
+        return [label for label, row in self.rows.items() if row.kind in kinds]
+
+    @property
+    def variants(self) -> list[str]:
+        return self.labels("variant")
+
+    @property
+    def ensemble(self) -> str:
+        return self.labels("ensemble")[0]
+
+    @property
+    def best_single(self) -> str | None:
+        chosen = [row.source for row in self.rows.values() if row.kind == "best single"]
+        return chosen[0] if chosen else None
+
+    @property
+    def table(self) -> dict[str, dict[str, dict[str, float]]]:
+        """row label -> group -> metric -> value, without the intervals."""
+        return {label: {g: {m: e.value for m, e in s.items()} for g, s in row.stats.items()} for label, row in self.rows.items()}
+
+    @property
+    def levels(self) -> list[str]:
+        """The difficulty-level groups present (and ``all``), in Table 1's order."""
+        return [g for g in LEVELS if g in self.counts]
+
+    @property
+    def other_groups(self) -> list[str]:
+        return [g for g in self.counts if g not in LEVELS]
+
+    def thin_groups(self) -> dict[str, int]:
+        return {g: n for g, n in self.counts.items() if n < THIN}
+
+    def compare(self, member: str, group: str = "all", metric: str = "mrr") -> Estimate:
+        """The ensemble minus ``member`` on the same queries, in percentage points, with a paired interval."""
+        mask = self.masks[group]
+        ens, other = (per_query(self.true_ranks[label][mask], metric) for label in (self.ensemble, member))
+        return mean_interval(ens - other)
+
+    # -- outputs ---------------------------------------------------------------------------
+
+    def _name(self, label: str) -> str:
+        row = self.rows[label]
+        name = f"**{label}**" if row.kind == "ensemble" else label
+        return f"{name} ⚠" if row.flags else name
+
+    def _table(self, metrics: Sequence[str], groups: Sequence[str]) -> list[str]:
+        head = "| | " + " | ".join(f"{METRIC_TITLES[m]} {g}" for m in metrics for g in groups) + " |"
+        lines = [head, "|---|" + "---:|" * (len(metrics) * len(groups))]
+        for label, row in self.rows.items():
+            lines.append(f"| {self._name(label)} | " + " | ".join(row.stats[g][m].text() for m in metrics for g in groups) + " |")
+        return lines + [""]
+
+    def comparison_lines(self, metric: str = "mrr") -> list[str]:
+        """Markdown: the ensemble against each variant, per level group, and whether it beats them all."""
+        groups = self.levels
+        lines = ["| ensemble − variant | " + " | ".join(groups) + " |", "|---|" + "---:|" * len(groups)]
+        diffs = {v: {g: self.compare(v, g, metric) for g in groups} for v in self.variants}
+        for v, by_group in diffs.items():
+            lines.append(f"| {v} | " + " | ".join(difference_text(d) for d in by_group.values()) + " |")
+        lines.append("")
+        for g in groups:
+            if not self.counts[g]:
+                lines.append(f"- {g}: no test views")
+                continue
+            verdicts = [verdict(diffs[v][g]) for v in self.variants]
+            better, tie, worse = (verdicts.count(x) for x in ("better", "tie", "worse"))
+            beats = "beats every variant" if better == len(verdicts) else "does not beat every variant"
+            lines.append(f"- {g}: {beats} (better than {better}, tie with {tie}, worse than {worse} of {len(verdicts)})")
+        return lines + [""]
 
     def markdown(self) -> str:
-        head = "| | " + " | ".join(f"{METRIC_TITLES[m]} {lv}" for m in METRICS for lv in LEVELS) + " |"
-        rule = "|---|" + "---:|" * (len(METRICS) * len(LEVELS))
-        lines = [f"### {self.title}", "", head, rule]
-        for label, row in self.table.items():
-            name = f"**{label}**" if label == self.ensemble else label
-            lines.append(f"| {name} | " + " | ".join(_cell(row[lv][m]) for m in METRICS for lv in LEVELS) + " |")
-        lines += ["", "Test views: " + ", ".join(f"{lv} {n}" for lv, n in self.counts.items())]
+        lines = [f"### {self.title}", "", *self._table(METRICS, self.levels)]
+        lines += ["Test views: " + ", ".join(f"{g} {n}" for g, n in self.counts.items()), ""]
+        if self.other_groups:
+            lines += ["#### By group", "", *self._table(METRICS, [*self.other_groups, "all"])]
+        lines += ["#### Recall@N (R@1 is Top-1, R@5 is Top-5)", "", *self._table(RECALLS, list(self.counts))]
+        flagged = [(label, row.flags) for label, row in self.rows.items() if row.flags]
+        if flagged:
+            lines += ["#### Flags (⚠)", "", *(f"- {label}: {'; '.join(flags)}" for label, flags in flagged), ""]
+        if self.variants:
+            lines += [f"#### {self.ensemble} against each variant (MRR, percentage points)", "", *self.comparison_lines()]
+        thin = self.thin_groups()
+        lines.append(
+            f"Too thin to read (n < {THIN}): " + ", ".join(f"{g} (n={n})" for g, n in thin.items())
+            if thin
+            else f"Every group has at least {THIN} test views."
+        )
+        lines += ["", f"_{INTERVALS}_"]
         return "\n".join(lines) + "\n"
 
     def csv(self) -> str:
         out = io.StringIO()
         writer = csv.writer(out)
-        writer.writerow(["row", "level", "n", *METRICS])
-        for label, row in self.table.items():
-            for lv in LEVELS:
-                writer.writerow([label, lv, self.counts[lv], *(f"{row[lv][m]:.4f}" for m in METRICS)])
+        writer.writerow(["row", "kind", "group", "n", *(f"{m}{s}" for m in ALL_METRICS for s in ("", "_low", "_high")), "flags"])
+        for label, row in self.rows.items():
+            for g, stats in row.stats.items():
+                values = [f"{x:.4f}" for m in ALL_METRICS for x in (stats[m].value, stats[m].low, stats[m].high)]
+                writer.writerow([label, row.kind, g, self.counts[g], *values, "; ".join(row.flags)])
         return out.getvalue()
 
+    def to_json(self) -> dict[str, Any]:
+        """Everything the tables show, JSON-safe (NaN as null)."""
+        return {
+            "title": self.title,
+            "num_classes": self.num_classes,
+            "counts": self.counts,
+            "intervals": INTERVALS,
+            "rows": [
+                {
+                    "label": row.label,
+                    "kind": row.kind,
+                    "key": row.key,
+                    "flags": list(row.flags),
+                    "stats": {g: {m: e.to_json() for m, e in s.items()} for g, s in row.stats.items()},
+                }
+                for row in self.rows.values()
+            ],
+            "ensemble_vs_variant_mrr": {v: {g: self.compare(v, g).to_json() for g in self.counts} for v in self.variants},
+        }
+
     def plot(self) -> bytes:
-        """PNG: one panel per metric, bars per level for each variant, the ensemble and random."""
+        """PNG: one panel per Table 1 metric, bars per level group for each row, with 95% error bars."""
         import matplotlib
 
         matplotlib.use("Agg")
         import matplotlib.pyplot as plt
 
-        rows = [*self.variants, self.ensemble, "random"]
-        fig, axes = plt.subplots(1, 3, figsize=(15, 4.8), sharey=False)
+        rows = [label for label, row in self.rows.items() if row.kind != "best single"]  # a repeat
+        groups = self.levels
+        fig, axes = plt.subplots(1, len(METRICS), figsize=(5 * len(METRICS), 4.8))
         width = 0.8 / len(rows)
         cmap = plt.get_cmap("tab20")
         for ax, m in zip(axes, METRICS):
             for i, label in enumerate(rows):
-                values = [self.table[label][lv][m] for lv in LEVELS[:3]]
-                colour = "black" if label == self.ensemble else ("lightgrey" if label == "random" else cmap(i % 20))
-                ax.bar(np.arange(3) + (i - len(rows) / 2 + 0.5) * width, values, width, label=label, color=colour)
-            ax.set_xticks(range(3), [f"{lv} (n={self.counts[lv]})" for lv in LEVELS[:3]])
+                kind, est = self.rows[label].kind, [self.rows[label].stats[g][m] for g in groups]
+                values = np.array([e.value for e in est])
+                errors = np.nan_to_num(np.array([[e.value - e.low for e in est], [e.high - e.value for e in est]]))
+                colour = "black" if kind == "ensemble" else "lightgrey" if kind == "random" else cmap(i % 20)
+                x = np.arange(len(groups)) + (i - len(rows) / 2 + 0.5) * width
+                ax.bar(x, values, width, yerr=errors, label=label, color=colour, error_kw={"elinewidth": 0.8, "capsize": 1.5})
+            ax.set_xticks(range(len(groups)), [f"{g} (n={self.counts[g]})" for g in groups])
             ax.set_title(METRIC_TITLES[m])
             ax.grid(axis="y", alpha=0.3)
-        axes[-1].legend(fontsize=7, loc="upper right")
-        fig.suptitle(self.title)
-        fig.tight_layout()
+        # Below the panels: inside one it would hide the bars.
+        fig.legend(*axes[0].get_legend_handles_labels(), loc="lower center", ncol=min(len(rows), 5), fontsize=8, frameon=False)
+        fig.suptitle(f"{self.title} (95% intervals)")
+        fig.tight_layout(rect=(0, 0.06 * math.ceil(len(rows) / 5), 1, 1))
         buf = io.BytesIO()
         fig.savefig(buf, format="png", dpi=100)
         plt.close(fig)

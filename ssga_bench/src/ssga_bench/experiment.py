@@ -22,13 +22,14 @@ skips finished variants and an interrupted run resumes with the next one.
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import json
 import math
 import re
 import time
 from collections import Counter, defaultdict
-from collections.abc import Callable, Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -39,17 +40,19 @@ import numpy as np
 from ssga_bench.cache import FeatureCache
 from ssga_bench.config import Experiment, TrainingConfig
 from ssga_bench.dataset import Dataset, build_workspace
-from ssga_bench.evaluation import Report
-from ssga_bench.protocol import Sample
+from ssga_bench.evaluation import Report, truth_ranks
 from ssga_bench.gcn import load_gcn, save_gcn, train_gcn
 from ssga_bench.io import atomic_write_bytes, load_npy, npy_bytes, read_json, warn, writable_folder, write_json
-from ssga_core.data import View
-from ssga_core.errors import SsgaError
+from ssga_bench.oracle import TrueRender
+from ssga_bench.protocol import Protocol, Sample
+from ssga_bench.queries import draw_queries, save_predictions
+from ssga_bench.workspace import Workspace
 from ssga_core.config import ResolvedVariant
+from ssga_core.data import SceneGraph, View
+from ssga_core.errors import SsgaError
 from ssga_core.geometry import Pose
-from ssga_core.pipeline import BoundVariant, CellTraining, Progress, build_graph, training_graphs
-from ssga_core.stages import Fuser
-
+from ssga_core.pipeline import BoundVariant, CellTraining, Progress, PseudoView, build_graph, training_graphs
+from ssga_core.stages import Fuser, Synthesizer
 
 
 @dataclass
@@ -93,20 +96,75 @@ def jittered(pose: Pose, rng: np.random.Generator, metres: float, degrees: float
     return Pose(pose.x + r * math.cos(phi), pose.y + r * math.sin(phi), yaw, pose.height)
 
 
-def training_cells(dataset: Dataset, config: TrainingConfig, views: Views) -> list[CellTraining]:
-    """Each cell's real view and the poses of every class's pseudo-training graphs, seeded.
+@dataclass(frozen=True)
+class TrainingPlan:
+    """What every variant of an experiment learns from (the same for all of them).
 
-    A target class gets its training viewpoint and ``synthetic_per_class - 1``
-    jittered copies; the real class has its real view already, and gets the
-    jittered copies beside it. Jitters are drawn class by class.
+    Attributes:
+        cells: each cell's real view.
+        pseudo: the pseudo-views a variant with S synthesizes.
+        pose_groups: per pseudo-view, the pose it was drawn as (jittered copies of one
+            canonical viewpoint share one): the classifier holds out whole groups for
+            early stopping, so its validation never differs from training by a jitter only.
+    """
+
+    cells: list[CellTraining]
+    pseudo: list[PseudoView]
+    pose_groups: list[int]
+
+    def groups(self, real_graphs: int) -> np.ndarray:
+        """The group of every training graph (:func:`ssga_core.pipeline.training_graphs`'s order):
+        the real graphs each their own, then the pseudo-views'."""
+        return np.concatenate([np.arange(real_graphs), real_graphs + np.asarray(self.pose_groups, dtype=np.int64)]).astype(np.int64)
+
+
+def training_plan(dataset: Dataset, config: TrainingConfig, views: Views) -> TrainingPlan:
+    """Each cell's real view, and the pose and source views of every class's pseudo-views, seeded.
+
+    Poses (``config.poses``): ``"class"`` draws ``synthetic_per_class`` poses over the
+    region of poses of each class, as the protocol draws test views; ``"canonical"`` gives
+    a class without a real view its training viewpoint and ``synthetic_per_class - 1``
+    jittered copies (the real class: the jittered copies beside its real view).
+
+    Sources (``config.sources``): ``"own"`` renders a class from its cell's real view;
+    ``"seen"`` adds the other cells' real views that see at least ``min_source_coverage``
+    of the floor the pose sees, most first, up to ``max_sources`` in all.
     """
     rng = np.random.default_rng(config.seed)
-    poses: dict[int, dict[int, list[Pose]]] = defaultdict(dict)
-    for s in sorted(dataset.split("train") + dataset.split("target"), key=lambda s: s.place):
-        first = [] if s.split == "train" else [s.pose]
-        jitters = [jittered(s.pose, rng, config.jitter_m, config.jitter_deg) for _ in range(config.synthetic_per_class - 1)]
-        poses[s.cell][s.place] = first + jitters
-    return [CellTraining(views(s, keep=True), s.place, poses[s.cell]) for s in dataset.split("train")]
+    train = dataset.split("train")
+    rank_of_cell = {cell: rank for rank, cell in enumerate(dataset.plan.cells)}
+    orientations = dataset.plan.config.orientations
+    cells = []
+    for s in train:
+        rank = rank_of_cell[s.cell]
+        cells.append(CellTraining(views(s, keep=True), s.place, range(rank * orientations, (rank + 1) * orientations)))
+    index_of_rank = {rank_of_cell[s.cell]: i for i, s in enumerate(train)}
+    protocol = Protocol(dataset.floor_plan, dataset.camera, dataset.plan.config)
+
+    drawn: list[tuple[int, Pose, int]] = []  # (place, pose, group)
+    if config.poses == "class":
+        height = train[0].pose.height
+        for place, poses in sorted(protocol.class_poses(dataset.plan.cells, config.synthetic_per_class, height, rng).items()):
+            drawn.extend([(place, pose, len(drawn) + i) for i, pose in enumerate(poses)])
+    else:
+        for group, s in enumerate(sorted(dataset.split("train") + dataset.split("target"), key=lambda s: s.place)):
+            first = [] if s.split == "train" else [s.pose]
+            jitters = [jittered(s.pose, rng, config.jitter_m, config.jitter_deg) for _ in range(config.synthetic_per_class - 1)]
+            drawn.extend((s.place, pose, group) for pose in first + jitters)
+
+    real_polygons = [protocol.polygon(s.pose) for s in train]
+    pseudo = []
+    for place, pose, _ in drawn:
+        own = index_of_rank[place // orientations]
+        sources = [own]
+        if config.sources == "seen" and config.max_sources > 1:
+            seen = protocol.polygon(pose)
+            area = seen.area
+            coverage = [(seen.intersection(poly).area / area if area > 0 else 0.0, i) for i, poly in enumerate(real_polygons) if i != own]
+            ranked = sorted((c, i) for c, i in coverage if c >= config.min_source_coverage)[::-1]
+            sources += [i for _, i in ranked[: config.max_sources - 1]]
+        pseudo.append(PseudoView(place, pose, tuple(sources)))
+    return TrainingPlan(cells, pseudo, [group for _, _, group in drawn])
 
 
 def folder_names(labels: Iterable[str]) -> dict[str, str]:
@@ -125,8 +183,9 @@ def folder_names(labels: Iterable[str]) -> dict[str, str]:
     return names
 
 
-def variant_key(rv: ResolvedVariant, training: TrainingConfig, dataset: Dataset) -> str:
+def variant_key(rv: ResolvedVariant, training: TrainingConfig, dataset: Dataset, extra: str = "") -> str:
     spec = {
+        "extra": extra,
         "variant": str(rv.variant),
         "stages": {k: [s.cls.name, s.config.model_dump(mode="json")] for k, s in sorted(rv.stages.items())},
         "training": training.model_dump(mode="json"),
@@ -153,56 +212,144 @@ class Views:
         return view
 
 
+@dataclass(frozen=True)
+class VariantResult:
+    """What one variant left: its scores on the test and validation views, and a reference.
+
+    Attributes:
+        test: ``(test views, classes)`` class probabilities of the variant's GCN.
+        nearest: ``(test views, classes)`` a nearest-neighbour baseline over the same
+            features: the cosine similarity of the query's whole-image node to the
+            nearest training graph of each class.
+        val: ``(validation views, classes)`` the GCN's probabilities (empty without a
+            validation split).
+        training: the classifier's training record (``training.json``).
+    """
+
+    test: np.ndarray
+    nearest: np.ndarray
+    val: np.ndarray
+    training: dict[str, Any]
+
+
+_OUTPUTS = {"test": "scores.npy", "nearest": "nn_scores.npy", "val": "val_scores.npy"}
+
+
 def run_variant(
     rv: ResolvedVariant,
     dataset: Dataset,
     training: TrainingConfig,
+    plan: TrainingPlan,
     folder: Path,
     cache: FeatureCache,
     views: Views,
     timings: Timings,
     progress: Progress | None = None,
-) -> np.ndarray:
-    """Train and score one variant; returns ``(test views, classes)`` probabilities."""
-    key = variant_key(rv, training, dataset)
-    scores_path, meta_path = folder / "scores.npy", folder / "training.json"
-    finished = _finished_scores(folder, key, (len(dataset.split("test")), dataset.num_classes))
+    *,
+    synthesizer: Synthesizer | None = None,
+) -> VariantResult:
+    """Train and score one variant (resuming: a finished run with the same key is read back).
+
+    Args:
+        synthesizer: replaces the variant's own (the oracle's true renders).
+    """
+    key = variant_key(rv, training, dataset, extra=synthesizer.name if synthesizer is not None else "")
+    shapes = {"test": len(dataset.split("test")), "nearest": len(dataset.split("test")), "val": len(dataset.split("val"))}
+    finished = _finished(folder, key, {k: (n, dataset.num_classes) for k, n in shapes.items()})
     if finished is not None:
         return finished
 
     bound = rv.bind()
+    if synthesizer is not None:
+        bound = dataclasses.replace(bound, synthesizer=synthesizer, label=f"{bound.label} on {synthesizer.name}s")
     instrument(bound, timings)
-    cells = training_cells(dataset, training, views)
-    graphs, labels = training_graphs(bound, cells, real_for_every_class=training.real_for_every_class, memo=cache, progress=progress)
+    graphs, labels = training_graphs(
+        bound, plan.cells, plan.pseudo, real_for_every_class=training.real_for_every_class, memo=cache, progress=progress
+    )
+    real_graphs = len(graphs) - (len(plan.pseudo) if bound.synthesizer is not None else 0)
     with timings.phase("train"):
-        model, report = train_gcn(graphs, np.array(labels), dataset.num_classes, training)
+        model, report = train_gcn(graphs, np.array(labels), dataset.num_classes, training, groups=plan.groups(real_graphs)[: len(graphs)])
     save_gcn(model, folder / "gcn.pt")
 
-    tests = dataset.split("test")
-    test_graphs = []
-    for n, s in enumerate(tests, 1):
-        test_graphs.append(build_graph(bound, views(s), memo=cache))
-        if progress:
-            progress("test graphs", n, len(tests))
+    def query_graphs(split: str) -> list[SceneGraph]:
+        samples = dataset.split(split)
+        out = []
+        for n, s in enumerate(samples, 1):
+            out.append(build_graph(bound, views(s), memo=cache))
+            if progress:
+                progress(f"{split} graphs", n, len(samples))
+        return out
+
+    tests, vals = query_graphs("test"), query_graphs("val")
     with timings.phase("evaluate"):
-        scores = load_gcn(folder / "gcn.pt").predict(test_graphs)
-    atomic_write_bytes(scores_path, npy_bytes(scores))
-    write_json(meta_path, {"key": key, "label": rv.label, "graphs": len(graphs), **asdict(report)})
-    return scores
+        model = load_gcn(folder / "gcn.pt")
+        result = VariantResult(
+            test=model.predict(tests),
+            nearest=nearest_neighbour_scores(graphs, np.array(labels), tests, dataset.num_classes),
+            val=model.predict(vals) if vals else np.zeros((0, dataset.num_classes), np.float32),
+            training={"key": key, "label": bound.label, "graphs": len(graphs), **asdict(report)},
+        )
+    for name, file in _OUTPUTS.items():
+        atomic_write_bytes(folder / file, npy_bytes(getattr(result, name)))
+    write_json(folder / "training.json", result.training)
+    return result
 
 
-def _finished_scores(folder: Path, key: str, shape: tuple[int, int]) -> np.ndarray | None:
-    """The scores a finished run of this variant left, or None; damaged ones are recomputed, with a warning."""
-    scores_path, meta_path = folder / "scores.npy", folder / "training.json"
-    if not (scores_path.exists() and meta_path.exists()):
+def nearest_neighbour_scores(train: Sequence[SceneGraph], labels: np.ndarray, queries: Sequence[SceneGraph], num_classes: int) -> np.ndarray:
+    """``(queries, classes)``: cosine similarity of each query's whole-image node to the nearest training graph of each class (-1 for a class without one)."""
+
+    def whole(graphs: Sequence[SceneGraph]) -> np.ndarray:
+        x = np.stack([g.features[0] for g in graphs]).astype(np.float32) if graphs else np.zeros((0, 1), np.float32)
+        return x / np.maximum(np.linalg.norm(x, axis=1, keepdims=True), 1e-12)
+
+    similarity = whole(queries) @ whole(train).T  # (Q, T)
+    out = np.full((len(queries), num_classes), -1.0, dtype=np.float32)
+    for c in np.unique(labels):
+        out[:, c] = similarity[:, labels == c].max(axis=1)
+    return out
+
+
+def _finished(folder: Path, key: str, shapes: dict[str, tuple[int, int]]) -> VariantResult | None:
+    """What a finished run of this variant left, or None; damaged outputs are recomputed, with a warning."""
+    meta_path = folder / "training.json"
+    if not (meta_path.exists() and all((folder / f).exists() for f in _OUTPUTS.values())):
         return None
     try:
-        if read_json(meta_path).get("key") != key:
+        meta = read_json(meta_path)
+        if meta.get("key") != key:
             return None
     except (SsgaError, AttributeError):
         warn(f"{meta_path}: damaged; training this variant again")
         return None
-    return load_npy(scores_path, shape, what="scores")
+    arrays = {name: load_npy(folder / file, shapes[name], what="scores") for name, file in _OUTPUTS.items()}
+    if any(a is None for a in arrays.values()):
+        return None
+    return VariantResult(training=meta, **arrays)
+
+
+def choose_members(val_scores: Mapping[str, np.ndarray], truth: np.ndarray, fuser: Fuser) -> list[str]:
+    """Variants to fuse, chosen on the validation views: forward selection by fused MRR.
+
+    Starts from the best single variant and adds, one at a time, the variant that raises
+    the fused MRR most, while one does.
+    """
+    def mrr(labels: Sequence[str]) -> float:
+        fused = fuser.fuse(np.stack([val_scores[label] for label in labels]))
+        return float(np.mean(1.0 / truth_ranks(fused, truth)))
+
+    chosen = [max(val_scores, key=lambda label: mrr([label]))]
+    best = mrr(chosen)
+    while True:
+        gains = {label: mrr([*chosen, label]) for label in val_scores if label not in chosen}
+        if not gains or max(gains.values()) <= best:
+            return chosen
+        label = max(gains, key=gains.__getitem__)
+        chosen.append(label)
+        best = gains[label]
+
+
+def heading_offset_deg(a: float, b: float) -> float:
+    return abs(math.degrees(math.atan2(math.sin(a - b), math.cos(a - b))))
 
 
 def run_experiment(
@@ -222,29 +369,93 @@ def run_experiment(
         cache_root: folder of the feature cache (default ``out/cache``), shareable between runs.
     """
     out = writable_folder(out)
+    config = experiment.config
     timings = Timings()
     cache = FeatureCache(cache_root if cache_root is not None else out / "cache")
     views = Views(dataset, timings)
-    scores: dict[str, np.ndarray] = {}
+    with timings.phase("training plan"):
+        plan = training_plan(dataset, config.training, views)
+    results: dict[str, VariantResult] = {}
     folders = folder_names(rv.label for rv in experiment.variants)
     for rv in experiment.variants:
         if variant_progress:
             variant_progress(rv.label)
         folder = out / "variants" / folders[rv.label]
-        scores[rv.label] = run_variant(rv, dataset, experiment.config.training, folder, cache, views, timings, progress)
+        results[rv.label] = run_variant(rv, dataset, config.training, plan, folder, cache, views, timings, progress)
+
+    tests, vals = dataset.split("test"), dataset.split("val")
+    truth = np.array([s.place for s in tests])
+    val_truth = np.array([s.place for s in vals])
     fuser = experiment.fuser.create()
     assert isinstance(fuser, Fuser)
-    tests = dataset.split("test")
-    truth = np.array([s.place for s in tests])
-    levels = np.array([s.level for s in tests])
+    labels = [rv.label for rv in experiment.variants]
+    references: dict[str, np.ndarray] = {}
+    best_single = None
+    chosen = labels
+    if len(vals):
+        val_scores = {label: results[label].val for label in labels}
+        best_single = max(labels, key=lambda label: float(np.mean(1.0 / truth_ranks(val_scores[label], val_truth))))
+        chosen = choose_members(val_scores, val_truth, fuser)
+    ensemble_label = f"Ensemble ({fuser.tag()})"
     with timings.phase("evaluate"):
-        fused = fuser.fuse(np.stack([scores[rv.label] for rv in experiment.variants]))
-        report = Report.build(dataset.name, scores, f"Ensemble ({fuser.tag()})", fused, truth, levels, dataset.num_classes)
-    atomic_write_bytes(out / "report.md", report.markdown().encode())
-    atomic_write_bytes(out / "results.csv", report.csv().encode())
-    atomic_write_bytes(out / "results.png", report.plot())
+        fused_all = fuser.fuse(np.stack([results[label].test for label in labels]))
+        fused_chosen = fuser.fuse(np.stack([results[label].test for label in chosen]))
+    selected_label = f"Ensemble ({fuser.tag()}) of {len(chosen)} chosen on validation: " + ", ".join(chosen)
+    if config.ensemble.members == "validation" and len(vals):
+        ensemble = (selected_label, fused_chosen)
+        references[ensemble_label + " of all"] = fused_all
+    else:
+        ensemble = (ensemble_label, fused_all)
+        if len(vals):
+            references[selected_label] = fused_chosen
+    reference_variant = best_single or labels[0]
+    references[f"nearest neighbour ({reference_variant})"] = results[reference_variant].nearest
+
+    oracles = [rv for rv in experiment.variants if str(rv.variant) in config.ensemble.oracle and rv.variant.synthesizes]
+    workspace = _renderable(experiment) if oracles else None
+    for rv in oracles if workspace is not None else []:
+        if variant_progress:
+            variant_progress(f"oracle: {rv.label} on true renders")
+        folder = out / "oracle" / folders[rv.label]
+        oracle = run_variant(rv, dataset, config.training, plan, folder, cache, views, timings, progress, synthesizer=TrueRender(workspace))
+        references[f"oracle: {rv.label} on true renders"] = oracle.test
+
+    flags = {label: "training stopped at the epoch cap" for label in labels if results[label].training.get("stopped_at_cap")}
+    landmark = {s.cell: s.pose.yaw for s in dataset.split("train")}
+    near = np.array([heading_offset_deg(s.pose.yaw, landmark[s.cell]) <= 60.0 for s in tests])
+    levels = np.array([s.level for s in tests])
+    groups = {"L1": levels == 1, "L2": levels == 2, "L3": levels == 3, "near": near, "far": ~near}
+    with timings.phase("evaluate"):
+        report = Report.build(
+            dataset.name,
+            {label: results[label].test for label in labels},
+            truth,
+            groups=groups,
+            num_classes=dataset.num_classes,
+            ensemble=ensemble,
+            best_single=best_single,
+            references=references,
+            flags=flags,
+        )
+    with timings.phase("report"):
+        atomic_write_bytes(out / "report.md", report.markdown().encode())
+        atomic_write_bytes(out / "results.csv", report.csv().encode())
+        atomic_write_bytes(out / "results.png", report.plot())
+        rows = {**{label: results[label].test for label in labels}, ensemble[0]: ensemble[1]}
+        save_predictions(out / "predictions.jsonl", tests, rows, truth, groups={"near": near, "far": ~near})
+        # Each class is shown by its training view: the real one, or the render at its target
+        # pose; a captured workspace has no such render, so its cell's real view stands in.
+        real_of_cell = {s.cell: s for s in dataset.split("train")}
+        class_views = {s.place: s if dataset.has_image(s) else real_of_cell[s.cell] for s in dataset.split("train") + dataset.split("target")}
+        draw_queries(out / "queries", dataset, tests, ensemble[1], truth, class_views, n=config.ensemble.queries_to_draw)
     write_json(out / "timings.json", dict(timings.seconds))
     return report, timings
+
+
+def _renderable(experiment: Experiment) -> Any:
+    """The experiment's workspace, opened, if it renders any pose (an oracle needs it); else None."""
+    workspace = experiment.workspace.create().open()
+    return workspace if isinstance(workspace, Workspace) else None
 
 
 def run(

@@ -34,6 +34,7 @@ Definitions (the paper leaves the last three open; these are ssga's):
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -48,7 +49,7 @@ from ssga_core.geometry import Camera, Pose
 from ssga_bench.visibility import cast_rays, occluder_segments, sees, view_overlap, visibility_polygon
 from ssga_bench.workspace import FloorPlan
 
-Split = Literal["train", "target", "test"]
+Split = Literal["train", "target", "test", "val"]
 
 
 class ProtocolConfig(BaseModel):
@@ -64,6 +65,19 @@ class ProtocolConfig(BaseModel):
     cells: int = Field(default=10, ge=1, le=1000, description="Location cells drawn at random.")
     orientations: int = Field(default=12, ge=1, le=360, description="Heading classes per cell.")
     test_per_class: int = Field(default=20, ge=1, le=100_000, description="Test views per class (the paper: 1500).")
+    test_per_level: int = Field(
+        default=0,
+        ge=0,
+        le=100_000,
+        description="Keep drawing test views (up to twice test_per_class per class) until each level has this many; 0: no quota.",
+    )
+    val_per_class: int = Field(
+        default=0,
+        ge=0,
+        le=100_000,
+        description="Validation views per class, drawn as test views are but apart from them: used only to choose among "
+        "variants (the best single variant, fusion selection), never for training or for the reported scores.",
+    )
     test_radius: float = Field(
         default=3.0, gt=0.0, le=100.0, description="Test cameras stand within this distance of their cell's centroid, metres."
     )
@@ -246,7 +260,12 @@ class Protocol:
         chosen = self._choose_cells(free_cells, height, workspace)
         reals = [int(rng.integers(c.orientations)) for _ in chosen]
         samples, training, real_place = self._training_samples(chosen, reals, {})
-        samples.extend(self._sample_tests([cell for cell, _ in chosen], training, real_place, height, rng, progress))
+        cells = [cell for cell, _ in chosen]
+        samples.extend(self._sample_tests(cells, training, real_place, height, rng, progress))
+        if c.val_per_class:
+            # Its own random stream: asking for validation views leaves the test draw as it was.
+            val_rng = np.random.default_rng([c.seed, 1])
+            samples.extend(self._sample_tests(cells, training, real_place, height, val_rng, None, split="val", per_class=c.val_per_class))
         return Plan(workspace, c, self.grid, tuple(cell for cell, _ in chosen), tuple(samples))
 
     def select(self, workspace: str, captures: Sequence[Pose]) -> Plan:
@@ -357,6 +376,51 @@ class Protocol:
         level = level_of(vo if c.level_reference == "class" else vo_landmark, c.level_bounds)
         return Sample(f"test-{place:04d}-{number:05d}", "test", place, cell, orientation, pose, vo, vo_landmark, level, source)
 
+    def _candidates(
+        self, cells: list[int], around_ranks: Callable[[], np.ndarray], height: float, rng: np.random.Generator, batch: int = 64
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """One batch of candidate views drawn as test views are: a position uniform in the free
+        floor within ``test_radius`` of a cell centroid (cells by rank from ``around_ranks()``,
+        one per candidate), a uniform heading. Returns positions, yaws, ray distances and the
+        grid cell each belongs to (``-1``: none), for the candidates on free floor."""
+        c = self.config
+        around = self.centroids[np.asarray(cells)[around_ranks()]]
+        r = c.test_radius * np.sqrt(rng.random(batch))
+        phi = rng.random(batch) * 2 * math.pi
+        xy = around + np.stack([r * np.cos(phi), r * np.sin(phi)], axis=-1)
+        yaw = rng.random(batch) * 2 * math.pi
+        free = self.is_free(xy)
+        xy, yaw = xy[free], yaw[free]
+        if not len(xy):
+            return xy, yaw, np.zeros((0, c.rays)), np.zeros(0, dtype=int)
+        distances = self.rays(xy, yaw)
+        return xy, yaw, distances, self.assign(xy, yaw, distances)
+
+    def class_poses(self, cells: Sequence[int], per_class: int, height: float, rng: np.random.Generator) -> dict[int, list[Pose]]:
+        """``per_class`` poses of every class of ``cells`` (grid cells in class order), drawn
+        over the region of poses that belong to the class, the way test views are drawn.
+
+        A class whose poses are too rare to find within ``max_candidates`` tries per pose
+        wanted gets fewer (possibly none).
+        """
+        c = self.config
+        cells = list(cells)
+        rank_of = {cell: rank for rank, cell in enumerate(cells)}
+        poses: dict[int, list[Pose]] = {place: [] for place in range(len(cells) * c.orientations)}
+        wanted = per_class * len(poses)
+        tried, batch = 0, 64
+        while sum(len(p) for p in poses.values()) < wanted and tried < wanted * c.max_candidates:
+            short = np.array([place // c.orientations for place, p in poses.items() if len(p) < per_class])
+            xy, yaw, _, cell = self._candidates(cells, lambda: rng.choice(short, size=batch), height, rng, batch)
+            tried += batch
+            orientation = self.orientation_of(yaw)
+            for k in range(len(xy)):
+                if cell[k] in rank_of:
+                    place = rank_of[cell[k]] * c.orientations + int(orientation[k])
+                    if len(poses[place]) < per_class:
+                        poses[place].append(Pose(float(xy[k, 0]), float(xy[k, 1]), float(yaw[k]), height))
+        return poses
+
     def _sample_tests(
         self,
         cells: list[int],
@@ -365,45 +429,54 @@ class Protocol:
         height: float,
         rng: np.random.Generator,
         progress: Callable[[int, int], None] | None,
+        split: Split = "test",
+        per_class: int | None = None,
     ) -> list[Sample]:
+        """``per_class`` views of every class (default ``test_per_class``); test views then
+        continue (up to twice that per class) until every level has ``test_per_level``."""
         c = self.config
+        per_class = c.test_per_class if per_class is None else per_class
+        quota = c.test_per_level if split == "test" else 0
         rank_of = {cell: rank for rank, cell in enumerate(cells)}
-        wanted = c.test_per_class * len(cells) * c.orientations
+        wanted = per_class * len(cells) * c.orientations
         counts = np.zeros(len(cells) * c.orientations, dtype=int)
+        levels = np.zeros(4, dtype=int)
         polygons = {place: self.polygon(pose) for place, pose in training.items()}
         tests: list[Sample] = []
         tried, batch = 0, 64
-        while len(tests) < wanted and tried < wanted * c.max_candidates:
+
+        def short_levels() -> bool:
+            return bool(quota) and bool((levels[1:] < quota).any())
+
+        while ((counts < per_class).any() or short_levels()) and tried < wanted * c.max_candidates:
             # Draw around cells that still need views, so rare classes do not starve.
-            short = np.flatnonzero(counts < c.test_per_class) // c.orientations
-            around = self.centroids[np.asarray(cells)[rng.choice(short, size=batch)]]
-            r = c.test_radius * np.sqrt(rng.random(batch))
-            phi = rng.random(batch) * 2 * math.pi
-            xy = around + np.stack([r * np.cos(phi), r * np.sin(phi)], axis=-1)
-            yaw = rng.random(batch) * 2 * math.pi
+            short = np.flatnonzero(counts < per_class) // c.orientations
+            if not len(short):
+                short = np.flatnonzero(counts < 2 * per_class) // c.orientations
+            if not len(short):
+                break
+            xy, yaw, distances, cell = self._candidates(cells, lambda: rng.choice(short, size=batch), height, rng, batch)
             tried += batch
-            free = self.is_free(xy)
-            xy, yaw = xy[free], yaw[free]
-            if not len(xy):
-                continue
-            distances = self.rays(xy, yaw)
-            cell = self.assign(xy, yaw, distances)
             orientation = self.orientation_of(yaw)
             for k in range(len(xy)):
                 if cell[k] not in rank_of:
                     continue
                 place = rank_of[cell[k]] * c.orientations + int(orientation[k])
-                if counts[place] >= c.test_per_class:
+                if counts[place] >= (2 * per_class if quota else per_class):
                     continue
                 pose = Pose(float(xy[k, 0]), float(xy[k, 1]), float(yaw[k]), height)
-                tests.append(self._test_sample(place, int(cell[k]), int(orientation[k]), pose, distances[k], polygons, real_place, int(counts[place])))
+                sample = self._test_sample(place, int(cell[k]), int(orientation[k]), pose, distances[k], polygons, real_place, int(counts[place]))
+                if counts[place] >= per_class and levels[sample.level] >= quota:
+                    continue  # beyond the class's share, only a level still short of its quota takes a view
+                tests.append(dataclasses.replace(sample, id=sample.id.replace("test", split, 1), split=split) if split != "test" else sample)
                 counts[place] += 1
+                levels[sample.level] += 1
             if progress is not None:
                 progress(len(tests), wanted)
-        if len(tests) < wanted:
-            missing = int((c.test_per_class - counts).clip(0).sum())
+        missing = int((per_class - counts).clip(0).sum())
+        if missing:
             raise InputError(
-                f"protocol: {missing} of {wanted} test views could not be placed after {tried} candidate poses; "
-                f"raise protocol.test_radius or protocol.max_candidates, or lower protocol.test_per_class"
+                f"protocol: {missing} of {wanted} {split} views could not be placed after {tried} candidate poses; "
+                f"raise protocol.test_radius or protocol.max_candidates, or lower protocol.{split}_per_class"
             )
         return sorted(tests, key=lambda s: s.id)

@@ -30,18 +30,25 @@ Real images (queries, and the one real training image per cell) take the query p
 the order without S. So ``PDS``, ``PSD`` and ``SPD`` all parse-and-describe a query
 like ``PD``; ``DS`` and ``SD`` like ``D``.
 
+**Several sources.** A pseudo-view may be rendered from several real views at once
+(every landmark that sees its content, not only its own cell's): the stages before S
+run on each source alone, S fuses the sources into one synthetic view, and what each
+source carried across (parts, local features) is joined into one state; the stages
+after S run once, on the fused view. With one source this is the paper's synthesis.
+
 Training data (paper §4.1), :func:`training_graphs`: each cell has one real view, of
-one of its classes. A variant with S renders that view at every class's training
-viewpoints, so each class gets graphs of its own; a variant without S has only the
-real graph, which stands for every class of its cell (they "simply use available
-training images as they are"), or for its own class only if so asked. The descriptor
-is fitted first, on the views the graphs will be built from.
+one of its classes. A variant with S renders the real views at poses of every class
+(:class:`PseudoView`: which class, where, from which cells' views), so each class gets
+graphs of its own; a variant without S has only the real graph, which stands for every
+class of its cell (they "simply use available training images as they are"), or for
+its own class only if so asked. The descriptor is fitted first, on the views the
+graphs will be built from. Which poses and which sources is the caller's choice.
 """
 
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Protocol
 
@@ -57,11 +64,11 @@ from ssga_core.variants import Variant, check_binding
 
 
 class FeatureMemo(Protocol):
-    """Somewhere to reuse the regions and local features of real views (a cache).
+    """Somewhere to reuse the regions and local features of views (a cache).
 
-    The eight variants of an experiment parse and describe the same real images; a
-    memo (such as the benchmark's on-disk cache) computes each once. Synthetic views
-    are never looked up: each is made once.
+    The eight variants of an experiment parse and describe the same real images, and
+    several render the same pseudo-views; a memo (such as the benchmark's cache) computes
+    each once.
     """
 
     def regions(self, parser: Parser, view: View) -> Regions: ...
@@ -97,54 +104,89 @@ def table_label(variant: Variant, parser: Parser | type[Parser] | None, descript
 
 
 def build_graph(
-    bound: BoundVariant, view: View, target: Pose | None = None, memo: FeatureMemo | None = None, *, synthesis: Synthesis | None = None
+    bound: BoundVariant,
+    view: View | Sequence[View],
+    target: Pose | None = None,
+    memo: FeatureMemo | None = None,
+    *,
+    synthesis: Synthesis | Sequence[Synthesis] | None = None,
 ) -> SceneGraph:
     """The scene graph of ``view`` under ``bound``'s order.
 
     Args:
         bound: the variant and its stages.
-        view: a real view.
+        view: a real view; or, for a pseudo-training graph, several real views that
+            all see the target: each runs the stages before S on its own, S fuses them
+            into one synthetic view (:meth:`~ssga_core.Synthesizer.synthesize_from`),
+            and what each carried across is joined (parts, local features) before the
+            stages after S run once on the fused view.
         target: the pose to synthesize for a pseudo-training graph; ``None`` for a
             real image (a query, or a cell's real training view): the query path.
         memo: reuse the regions and local features of real views computed before.
-        synthesis: ``view`` already rendered at ``target`` by ``bound``'s synthesizer
-            (the synthesizer always sees the real view, whatever the order).
+        synthesis: the views already rendered at ``target`` by ``bound``'s synthesizer,
+            one per view (the synthesizer always sees the real views, whatever the order).
     """
+    views = [view] if isinstance(view, View) else list(view)
     if target is None:
         order = bound.variant.query_order
+        if len(views) != 1:
+            raise InputError(f"a query graph is built from one view, got {len(views)}")
     elif bound.variant.synthesizes:
         order = bound.variant.order
     else:
         raise InputError(f"variant {bound.variant} has no S: it cannot build a graph for another pose")
-    state = _State(view, memo=memo)
+    states = [_State(v, memo=memo) for v in views]
     for stage in order:
-        if stage == "P":
-            assert bound.parser is not None
-            state.parse(bound.parser)
-        elif stage == "D":
-            state.describe(bound.descriptor)
-        else:
+        if stage == "S":
             assert bound.synthesizer is not None and target is not None
-            state.synthesize(synthesis or bound.synthesizer.synthesize(view, target))
-    return state.graph(bound.descriptor)
+            if synthesis is None:
+                syntheses = bound.synthesizer.synthesize_from(views, target)
+            else:
+                syntheses = [synthesis] if isinstance(synthesis, Synthesis) else list(synthesis)
+            for state, syn in zip(states, syntheses, strict=True):
+                state.synthesize(syn)
+            states = [_join(states)]
+            continue
+        for state in states:
+            if stage == "P":
+                assert bound.parser is not None
+                state.parse(bound.parser)
+            else:
+                state.describe(bound.descriptor)
+    return states[0].graph(bound.descriptor)
 
 
 @dataclass(frozen=True)
 class CellTraining:
-    """What one location cell gives a variant to learn from.
+    """One location cell's real training view (paper §4.1: one per cell).
 
     Attributes:
         real: the cell's one real view.
         real_class: the class that view belongs to.
-        poses: for every class of the cell (the real one included), the poses to
-            synthesize its pseudo-training graphs at: the class's training viewpoint
-            first (none for the real class, which has its real view), then any
-            jittered copies.
+        classes: every class of the cell (the real one included): what the real graph
+            stands for in a variant without S.
     """
 
     real: View
     real_class: int
-    poses: Mapping[int, Sequence[Pose]]
+    classes: Sequence[int]
+
+
+@dataclass(frozen=True)
+class PseudoView:
+    """A pseudo-training graph to synthesize: a class, a pose of it, and the real views to render it from.
+
+    Attributes:
+        place: the class.
+        pose: where to render.
+        sources: indices of the cells (in the ``cells`` list) whose real views render
+            it, fused into one point cloud; the paper's setting is the class's own cell
+            alone.
+    """
+
+    place: int
+    pose: Pose
+    sources: tuple[int, ...]
 
 
 Progress = Callable[[str, int, int], None]
@@ -154,6 +196,7 @@ Progress = Callable[[str, int, int], None]
 def training_graphs(
     bound: BoundVariant,
     cells: Sequence[CellTraining],
+    pseudo: Sequence[PseudoView],
     *,
     real_for_every_class: bool = True,
     memo: FeatureMemo | None = None,
@@ -162,28 +205,30 @@ def training_graphs(
     """Fit ``bound``'s descriptor and build every training graph with its class (see the module docstring).
 
     Args:
+        cells: the real views.
+        pseudo: the pseudo-views to synthesize (used only by a variant with S).
         real_for_every_class: without S, the real graph stands for every class of its
             cell (the paper's setting); false: for its own class only.
         progress: called with ``("training graphs", done, total)``.
 
     Returns:
-        the graphs and their classes: every cell's real graph first, then the
-        synthetic graphs class by class.
+        the graphs and their classes: every cell's real graph first (repeated for each
+        class it stands for), then one graph per pseudo-view, in ``pseudo``'s order.
     """
     synthesizer = bound.synthesizer
     # The descriptor learns from the views its graphs are built from: each real view
-    # and, with S, one synthetic view per other class, at its training viewpoint. Those
+    # and, with S, the first pseudo-view of every class without a real view. Those
     # syntheses are kept for the graphs, so none is rendered twice.
-    first: dict[tuple[int, int], Synthesis] = {}
+    first: dict[int, list[Synthesis]] = {}
     fit_views = [cell.real for cell in cells]
     fit_labels = [cell.real_class for cell in cells]
     if synthesizer is not None:
-        for c, cell in enumerate(cells):
-            for place, poses in sorted(cell.poses.items()):
-                if place != cell.real_class and poses:
-                    first[c, place] = synthesizer.synthesize(cell.real, poses[0])
-                    fit_views.append(first[c, place].view)
-                    fit_labels.append(place)
+        real_classes = {cell.real_class for cell in cells}
+        for i, p in enumerate(pseudo):
+            if p.place not in real_classes and p.place not in fit_labels:
+                first[i] = synthesizer.synthesize_from([cells[c].real for c in p.sources], p.pose)
+                fit_views.append(first[i][0].view)
+                fit_labels.append(p.place)
     bound.descriptor.fit(fit_views, fit_labels)
 
     graphs: list[SceneGraph] = []
@@ -192,19 +237,68 @@ def training_graphs(
         real = build_graph(bound, cell.real, memo=memo)
         stands_for = [cell.real_class]
         if synthesizer is None and real_for_every_class:
-            stands_for = sorted({cell.real_class, *cell.poses})
+            stands_for = sorted({cell.real_class, *cell.classes})
         graphs.extend([real] * len(stands_for))
         labels.extend(stands_for)
     if synthesizer is None:
         return graphs, labels
-    todo = sorted((place, c, i, pose) for c, cell in enumerate(cells) for place, poses in cell.poses.items() for i, pose in enumerate(poses))
-    for n, (place, c, i, pose) in enumerate(todo, 1):
-        synthesis = first.pop((c, place), None) if i == 0 else None
-        graphs.append(build_graph(bound, cells[c].real, pose, memo, synthesis=synthesis))
-        labels.append(place)
+    for n, p in enumerate(pseudo):
+        sources = [cells[c].real for c in p.sources]
+        graphs.append(build_graph(bound, sources, p.pose, memo, synthesis=first.pop(n, None)))
+        labels.append(p.place)
         if progress:
-            progress("training graphs", n, len(todo))
+            progress("training graphs", n + 1, len(pseudo))
     return graphs, labels
+
+
+def _join(states: Sequence[_State]) -> _State:
+    """One state from the states several source views carried into one fused synthetic view.
+
+    Parts and local features are concatenated (part indices offset per source); a
+    pixel of the fused label map belongs to the first source whose part landed there.
+    """
+    if len(states) == 1:
+        return states[0]
+    if any(s.region_features is not None for s in states):
+        raise InputError("a region descriptor describes before S from one view only; synthesize it from one view")
+    view = states[0].view
+    carried = {}
+    for name in ("semantic", "instance"):
+        maps = [getattr(s.view, name) for s in states]
+        if all(m is not None for m in maps):
+            carried[name] = _first_labelled(maps, offsets=[0] * len(maps))
+    if carried:
+        view = dataclasses.replace(view, **carried)
+    joined = _State(view, memo=states[0].memo)
+    if all(s.regions is not None for s in states):
+        sizes = [len(s.regions) for s in states]
+        offsets = np.concatenate([[0], np.cumsum(sizes)[:-1]]).astype(np.int32)
+        labels = _first_labelled([s.regions.labels for s in states], offsets.tolist())
+        boxes = np.concatenate([s.regions.boxes for s in states]).astype(np.float32)
+        cats = [s.regions.categories for s in states]
+        categories = np.concatenate(cats).astype(np.int32) if all(c is not None for c in cats) else None
+        joined.regions = Regions(labels=labels, boxes=boxes, categories=categories)
+    else:
+        offsets = np.zeros(len(states), np.int32)
+    if all(s.local is not None for s in states):
+        joined.local = LocalFeatures(
+            positions=np.concatenate([s.local.positions for s in states]).astype(np.float32),
+            descriptors=np.concatenate([s.local.descriptors for s in states]).astype(np.float32),
+        )
+        if all(s.local_nodes is not None for s in states):
+            joined.local_nodes = np.concatenate(
+                [np.where(s.local_nodes >= 0, s.local_nodes + off, -1) for s, off in zip(states, offsets)]
+            ).astype(np.int32)
+    return joined
+
+
+def _first_labelled(maps: Sequence[np.ndarray], offsets: Sequence[int]) -> np.ndarray:
+    """Per pixel, the first map's label ``>= 0`` (plus that map's offset), else -1."""
+    out = np.full(maps[0].shape, -1, dtype=np.int32)
+    for m, off in zip(maps, offsets):
+        free = (out < 0) & (m >= 0)
+        out[free] = m[free] + off
+    return out
 
 
 @dataclass

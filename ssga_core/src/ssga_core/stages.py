@@ -180,6 +180,68 @@ class Synthesizer(Stage):
     @abstractmethod
     def _synthesize(self, view: View, target: Pose) -> Synthesis: ...
 
+    def synthesize_from(self, views: Sequence[View], target: Pose) -> list[Synthesis]:
+        """Render ``target`` from several real views at once, as one fused point cloud.
+
+        Returns one :class:`Synthesis` per view, all holding the same synthetic image;
+        each view's point map says where its pixels land, and a pixel is ``visible``
+        only if it is on the front-most surface of *all* the views' points there. With
+        one view this is :meth:`synthesize`.
+        """
+        if not views:
+            raise InputError(f"synthesizer {self.name!r}: no view to synthesize from")
+        for view in views:
+            self._require(view)
+        if len(views) == 1:
+            return [self.synthesize(views[0], target)]
+        results = self._synthesize_from(views, target)
+        if len(results) != len(views) or any(r.visible.shape != v.camera.shape for r, v in zip(results, views)):
+            raise InputError(f"synthesizer {self.name!r} returned {len(results)} point maps for {len(views)} views, or of the wrong size")
+        return results
+
+    def _synthesize_from(self, views: Sequence[View], target: Pose) -> list[Synthesis]:
+        """Default: render from each view alone, then keep the nearest surface at every pixel.
+
+        Needs depth in the synthetic views (to know which surface is in front); a
+        synthesizer that can render a fused cloud in one pass (one z-buffer, holes filled
+        once) overrides this.
+        """
+        return fuse_syntheses([self.synthesize(view, target) for view in views], self.name)
+
+
+def fuse_syntheses(syntheses: Sequence[Synthesis], name: str = "synthesizer", depth_tolerance: float = 0.02) -> list[Synthesis]:
+    """Compose single-view syntheses of one target into one image, by depth.
+
+    Each target pixel shows the nearest surface any view drew there (pixels no view
+    has a depth for, such as filled holes, take the first view that drew something).
+    A source pixel stays ``visible`` only if its surface is within ``depth_tolerance``
+    (relative) of the nearest one at its target pixel.
+    """
+    views = [s.view for s in syntheses]
+    if any(v.depth is None for v in views):
+        raise InputError(f"synthesizer {name!r}: its synthetic views carry no depth, so several views cannot be fused; synthesize from one")
+    depth = np.stack([np.where(v.depth > 0, v.depth, np.inf) for v in views])  # (S, H, W)
+    nearest = depth.argmin(axis=0)
+    known = np.isfinite(depth.min(axis=0))
+    drawn = np.stack([v.rgb.any(axis=-1) for v in views])
+    first_drawn = np.where(drawn.any(axis=0), drawn.argmax(axis=0), 0)
+    source = np.where(known, nearest, first_drawn)
+    rows, cols = np.indices(source.shape)
+    rgb = np.stack([v.rgb for v in views])[source, rows, cols]
+    fused_depth = np.where(known, depth.min(axis=0), 0.0).astype(np.float32)
+    fused = View(rgb=rgb, pose=views[0].pose, camera=views[0].camera, depth=fused_depth, synthetic=True)
+    h, w = fused.camera.shape
+    out = []
+    for s, d in zip(syntheses, depth):
+        uv = s.target_uv[s.visible]
+        col = np.clip(np.rint(uv[:, 0]), 0, w - 1).astype(np.intp)
+        row = np.clip(np.rint(uv[:, 1]), 0, h - 1).astype(np.intp)
+        front = d[row, col] <= fused_depth[row, col] * (1.0 + depth_tolerance)
+        visible = s.visible.copy()
+        visible[s.visible] = front
+        out.append(Synthesis(view=fused, target_uv=s.target_uv, visible=visible))
+    return out
+
 
 class Fuser(Stage):
     """Late fusion of the class scores of several variants into one ranking."""
