@@ -9,12 +9,15 @@ on two.
 * ``old``: the implementation before the packed one, kept here only to be measured:
   graphs padded into dense ``(B, N, N)`` batches, ``Â H W`` per layer, mean readout;
 * ``new``: :mod:`ssga_bench.gcn` at :class:`~ssga_bench.config.TrainingConfig`'s
-  defaults: one packed node table, a block-diagonal sparse ``Â``, the last layer on
-  pooled rows.
+  defaults: one packed node table, a block-diagonal sparse ``Â``, the first layer's
+  inputs computed once, the last layer on pooled rows.
 
-Measured on the 2-core dev machine, 1 thread: old ~1.1 s, new ~0.25 s per epoch;
-2 threads ~0.75 s and ~0.17 s while nothing else runs (two threads are several times
-slower than one while another process holds a core). Run alone with
+Measured on the 2-core dev machine, nearly idle: one thread, old 1.1-1.3 s and new
+0.26-0.28 s per epoch (4-5x); two threads, old 0.87-1.07 s and new 0.25-0.29 s. While
+other jobs held the cores, one thread gave old 1.1-1.6 s and new ~0.4 s, and two threads
+were several times slower than one (old 6-10 s), hence ``TrainingConfig.threads = 1``.
+Packing the 2000 graphs takes ~30 ms, once per training.
+Run alone with
 ``pytest benchmarks/bench_gcn.py -o python_files='bench_*.py' --benchmark-enable``.
 """
 
@@ -134,6 +137,7 @@ def test_epoch_new_packed(benchmark, data, threads):
     torch.manual_seed(0)
     model = GCN(FEATURES, CLASSES, config.hidden, config.layers, config.dropout, config.readout, config.node_weights)
     model.fit_inputs(packed)
+    packed = model.prepare(packed)  # as train_gcn does: the first layer's inputs once
     optimiser = torch.optim.Adam(model.parameters(), lr=config.lr, weight_decay=config.weight_decay)
     with torch_threads(threads):
         benchmark.pedantic(_epoch, (model, optimiser, lambda i: (packed.take(i),), labels), rounds=3, warmup_rounds=1)

@@ -12,8 +12,8 @@ The model, in the order the data flows:
 2. **Node weights** (paper §3.2: the whole image 1, each of the K parts 1/K) scale the
    standardised features (``node_weights="input"``, the paper's recipe, the default) or
    only weigh the parts in the readout (``"readout"``); neither won when measured
-   (oracle renders: PD test MRR 84.1/83.6 against 84.4/82.5 on two seeds; demo, mean
-   over the five P variants 21.7 against 21.3).
+   (``scripts/gcn_oracle_check.py``: PD test MRR 84.2 both; the demo: 21.7 against 21.3,
+   mean over its five P variants).
 3. **Graph convolutions** ``H' = ReLU([H, ÂH] W + b)`` with ``Â = D^-1/2 (A + I) D^-1/2``:
    each node keeps a weight of its own beside its neighbourhood's. This is Kipf & Welling's
    first-order filter ``θ0 x + θ1 Â x`` before they tie ``θ0 = θ1``; tied, the whole-image
@@ -31,20 +31,21 @@ Training (:func:`train_gcn`): Adam, early stopping on the validation loss of a h
 share of the graphs, whole pose groups at a time (:func:`validation_split`), or on the
 training loss where no class can spare a group. Graphs are packed once into one node
 table and one block-diagonal sparse adjacency, with no padding; a mini-batch is a few
-vectorised index operations on them (:meth:`PackedGraphs.take`). On one torch thread
-by default: on the 2-core machine two threads are ~1.5x faster while nothing else
-runs, and several times slower while another process holds a core.
+vectorised index operations on them (:meth:`PackedGraphs.take`), and what the first
+layer reads is computed once (:meth:`GCN.prepare`). On one torch thread by default: on
+the 2-core machine two threads were at most 1.5x faster while nothing else ran, and
+several times slower while another process held a core.
 ``scripts/gcn_oracle_check.py`` and ``benchmarks/bench_gcn.py`` measure all of this.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import io
 import warnings
 from collections import Counter
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
-from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -77,7 +78,7 @@ def _offsets(counts: torch.Tensor) -> torch.Tensor:
     return torch.cat([counts.new_zeros(1), torch.cumsum(counts, 0)])
 
 
-@dataclass(frozen=True, eq=False)
+@dataclasses.dataclass(frozen=True, eq=False)
 class PackedGraphs:
     """Graphs packed into flat tensors: their batch as one block-diagonal graph, unpadded.
 
@@ -95,6 +96,8 @@ class PackedGraphs:
     rows: torch.Tensor
     cols: torch.Tensor
     values: torch.Tensor
+    first_layer: torch.Tensor | None = None
+    """What a model's first layer reads, per node, if computed once for training (:meth:`GCN.prepare`)."""
 
     @classmethod
     def of(cls, graphs: Sequence[SceneGraph]) -> PackedGraphs:
@@ -145,6 +148,7 @@ class PackedGraphs:
             self.rows[edges] + shift,
             self.cols[edges] + shift,
             self.values[edges],
+            self.first_layer[nodes] if self.first_layer is not None else None,
         )
 
     @property
@@ -232,32 +236,48 @@ class GCN(nn.Module):
             self.feature_scale[role] = scale.clamp(min=float(floor)) if floor > 0 else torch.ones_like(scale)
 
     def inputs(self, graphs: PackedGraphs) -> torch.Tensor:
+        """The node features standardised (and scaled by the node weights, for ``node_weights="input"``)."""
         role = graphs.is_part.long()
         h = (graphs.x - self.feature_mean[role]) / self.feature_scale[role]
         return h * graphs.weights[:, None] if self.hparams["node_weights"] == "input" else h
 
+    @torch.no_grad()
+    def prepare(self, graphs: PackedGraphs) -> PackedGraphs:
+        """``graphs`` with what the first layer reads computed once: it does not change while
+        training (the statistics are fitted before, and no dropout acts on the inputs)."""
+        return dataclasses.replace(graphs, first_layer=self._neighbourhood(self.inputs(graphs), graphs))
+
     def forward(self, graphs: PackedGraphs) -> torch.Tensor:
         """Class logits ``(graphs, classes)``."""
-        h = self.inputs(graphs)
+        z = graphs.first_layer if graphs.first_layer is not None else self._neighbourhood(self.inputs(graphs), graphs)
         *inner, last = self.convs
-        for i, conv in enumerate(inner):
-            h = self.dropout(h) if i else h
-            h = torch.relu(conv(torch.cat([h, torch.sparse.mm(graphs.adjacency, h)], dim=1)))
-        h = self.dropout(h) if inner else h
         # The last layer runs on pooled rows, one or two per graph, not on every node:
         # pooling S is linear, so S [H, ÂH] W = [SH, (SÂ)H] W, and only the ReLU moves
         # after the pooling (exact for the whole-image row, which S merely selects). That
-        # layer was most of an epoch's arithmetic; SÂ is a sparse product of two sparse
-        # matrices, so ÂH is never formed for every node either.
+        # layer was most of an epoch's arithmetic.
         pool = self._pool(graphs)
-        with warnings.catch_warnings():  # torch multiplies two sparse matrices through its CSR support, "in beta"
-            warnings.filterwarnings("ignore", "Sparse CSR tensor support is in beta", UserWarning)
-            pool_adjacency = torch.sparse.mm(pool, graphs.adjacency)
-        pooled = torch.relu(last(torch.cat([torch.sparse.mm(pool, h), torch.sparse.mm(pool_adjacency, h)], dim=1)))
+        if not inner:
+            z = torch.sparse.mm(pool, z)
+        for i, conv in enumerate(inner):
+            h = self.dropout(torch.relu(conv(z)))
+            z = self._neighbourhood(h, graphs, pool if i == len(inner) - 1 else None)
+        pooled = torch.relu(last(z))
         if self.hparams["readout"] == "image+parts":
             image, parts = pooled.chunk(2)
             pooled = torch.cat([image, parts * graphs.has_parts[:, None]], dim=1)  # zeros: no parts to summarise
         return self.classifier(self.dropout(pooled))
+
+    @staticmethod
+    def _neighbourhood(h: torch.Tensor, graphs: PackedGraphs, pool: torch.Tensor | None = None) -> torch.Tensor:
+        """``[H, ÂH]``, each node's state beside its neighbourhood's; given a pooling ``S``, its
+        pooled rows ``[SH, (SÂ)H]``, where ``SÂ`` is a product of two sparse matrices, so
+        ``ÂH`` is never formed for every node."""
+        if pool is None:
+            return torch.cat([h, torch.sparse.mm(graphs.adjacency, h)], dim=1)
+        with warnings.catch_warnings():  # torch multiplies two sparse matrices through its CSR support, "in beta"
+            warnings.filterwarnings("ignore", "Sparse CSR tensor support is in beta", UserWarning)
+            pool_adjacency = torch.sparse.mm(pool, graphs.adjacency)
+        return torch.cat([torch.sparse.mm(pool, h), torch.sparse.mm(pool_adjacency, h)], dim=1)
 
     def _pool(self, graphs: PackedGraphs) -> torch.Tensor:
         """The readout's averaging matrix: one row per graph, or for ``"image+parts"`` the
@@ -280,7 +300,7 @@ class GCN(nn.Module):
         return torch.cat([torch.softmax(self(packed.take(c)), dim=-1) for c in chunks]).numpy()
 
 
-@dataclass(frozen=True)
+@dataclasses.dataclass(frozen=True)
 class TrainingReport:
     """How training went (written to each variant's ``training.json``)."""
 
@@ -372,6 +392,7 @@ def train_gcn(
             packed.x.shape[1], num_classes, config.hidden, config.layers, config.dropout, config.readout, config.node_weights
         )
         model.fit_inputs(train_set)
+        train_set, val_set = model.prepare(train_set), (model.prepare(val_set) if val_set is not None else None)
         optimiser = torch.optim.Adam(model.parameters(), lr=config.lr, weight_decay=config.weight_decay)
         best, best_epoch, best_state = float("inf"), 0, _snapshot(model)
         train_loss: list[float] = []
