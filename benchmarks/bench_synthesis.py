@@ -3,7 +3,9 @@
 One 256 x 256 view (hfov 90) of a corridor with a box in it, so that the depth varies and
 the warps open cracks, disocclusions and strips the source never saw; each call renders
 it at the next of 32 nearby poses (up to 0.5 m away, turned up to 30 degrees), as the
-pipeline does for pseudo-training views. Run alone with
+pipeline does for pseudo-training views. ``v0.1`` is the configuration that was the
+default before bilinear resampling (the ``v0.1`` preset): compare the two within one
+run. Run alone with
 ``pytest benchmarks/bench_synthesis.py -o python_files=bench_*.py --benchmark-enable``.
 """
 
@@ -15,12 +17,23 @@ import pytest
 pytest.importorskip("ssga_synthesizer_depth_warp")
 
 from ssga_core import Camera, Pose, View  # noqa: E402
+from ssga_core.stages import fuse_syntheses  # noqa: E402
 from ssga_synthesizer_depth_warp.plugin import DepthWarp, DepthWarpConfig  # noqa: E402
 
 POSES = 32
+CONFIGS = {
+    "default": {},
+    "v0.1": {"resample": "nearest", "max_hole": 8},
+    "raw": {"fill_holes": "none"},
+    "v0.1-raw": {"resample": "nearest", "fill_holes": "none"},
+    "inpaint": {"fill_holes": "inpaint"},
+    "closed": {"splat": 2},
+    "adaptive": {"footprint": "adaptive"},
+    "adaptive-raw": {"footprint": "adaptive", "fill_holes": "none"},
+}
 
 
-def corridor_view(size: int = 256) -> View:
+def corridor_view(size: int = 256, pose: Pose | None = None) -> View:
     """A 4 m wide corridor (floor 1.5 m below the camera, ceiling 1 m above, end wall 8 m ahead) and a box."""
     camera = Camera(width=size, height=size, hfov_deg=90.0)
     grid = camera.pixel_grid()
@@ -35,7 +48,7 @@ def corridor_view(size: int = 256) -> View:
     rng = np.random.default_rng(0)
     texture = rng.integers(0, 128, (size // 8, size // 8, 3), dtype=np.uint8).repeat(8, 0).repeat(8, 1)
     rgb = texture + (depth[..., None] * 12).astype(np.uint8)
-    return View(rgb=rgb, pose=Pose(0.0, 0.0, 0.0), camera=camera, depth=depth)
+    return View(rgb=rgb, pose=pose or Pose(0.0, 0.0, 0.0), camera=camera, depth=depth)
 
 
 @pytest.fixture(scope="module")
@@ -58,13 +71,30 @@ def _ms_per_view(benchmark) -> None:
         benchmark.extra_info["views_per_s"] = round(1 / stats.stats.median, 1)
 
 
-@pytest.mark.parametrize("fill", ["none", "nearest", "inpaint"])
-@pytest.mark.parametrize("splat", [1, 2])
-def test_synthesize_one_view(benchmark, view, targets, splat, fill):
+@pytest.mark.parametrize("name", list(CONFIGS))
+def test_synthesize_one_view(benchmark, view, targets, name):
     """One 256 x 256 view per call, one thread."""
-    synthesizer = DepthWarp(DepthWarpConfig(splat=splat, fill_holes=fill))
+    synthesizer = DepthWarp(DepthWarpConfig(**CONFIGS[name]))
     it = iter(targets * 10_000)
     syn = benchmark(lambda: synthesizer.synthesize(view, next(it)))
     assert syn.view.rgb.shape == (256, 256, 3)
     benchmark.extra_info["covered"] = round(float((syn.view.depth > 0).mean()), 3)
+    _ms_per_view(benchmark)
+
+
+@pytest.mark.parametrize("footprint", ["square", "adaptive"])
+@pytest.mark.parametrize("how", ["fused", "composed"])
+def test_synthesize_from_four_views(benchmark, targets, how, footprint):
+    """One target from four views (the corridor seen from four places 1 m apart): one joint
+    render (``synthesize_from``) or the core's default, four renders composed by depth."""
+    views = [corridor_view(pose=Pose(float(dx), float(dy), 0.0)) for dx, dy in ((0, 0), (1, 0), (0, 1), (1, 1))]
+    synthesizer = DepthWarp(DepthWarpConfig(footprint=footprint))
+    it = iter(targets * 10_000)
+
+    def composed() -> list:
+        target = next(it)
+        return fuse_syntheses([synthesizer.synthesize(v, target) for v in views])
+
+    result = benchmark((lambda: synthesizer.synthesize_from(views, next(it))) if how == "fused" else composed)
+    assert len(result) == 4
     _ms_per_view(benchmark)

@@ -14,6 +14,8 @@ from ssga_core import Camera, InputError, Pose, View
 from ssga_core.testing import make_view
 
 RAW = DepthWarpConfig(fill_holes="none")
+SQUARE_RAW = DepthWarpConfig(resample="nearest", fill_holes="none")
+"""One pixel per point, its own colour: the 0.1 warp without hole filling."""
 
 
 def right_of(pose: Pose, metres: float) -> Pose:
@@ -61,7 +63,7 @@ def test_sideways_move_on_a_wide_image():
 def test_moving_forward_enlarges_about_the_centre():
     view = make_view(seed=2)
     ahead = Pose(view.pose.x + 0.5, view.pose.y, view.pose.yaw)  # yaw 0 looks along +x
-    syn = DepthWarp(RAW).synthesize(view, ahead)
+    syn = DepthWarp(SQUARE_RAW).synthesize(view, ahead)
     c = np.array(view.camera.principal_point, dtype=np.float32)
     np.testing.assert_allclose(syn.target_uv - c, 1.2 * (view.camera.pixel_grid() - c), atol=1e-3)  # 3 m / 2.5 m
     drawn = syn.view.depth > 0
@@ -90,12 +92,13 @@ def test_moving_back_keeps_every_point_of_the_surface_visible():
 def test_larger_splats_and_hole_filling_close_the_cracks():
     view = make_view(seed=2)
     ahead = Pose(view.pose.x + 0.5, view.pose.y, view.pose.yaw)
-    raw = DepthWarp(RAW).synthesize(view, ahead).view
+    raw = DepthWarp(SQUARE_RAW).synthesize(view, ahead).view
     assert (raw.depth == 0).mean() > 0.25
-    for config in (DepthWarpConfig(splat=2, fill_holes="none"), DepthWarpConfig(splat=3, fill_holes="none")):
+    for splat in (2, 3):
+        config = DepthWarpConfig(splat=splat, resample="nearest", fill_holes="none")
         assert (DepthWarp(config).synthesize(view, ahead).view.depth > 0).all()
     for fill in ("nearest", "inpaint"):
-        filled = DepthWarp(DepthWarpConfig(fill_holes=fill)).synthesize(view, ahead).view
+        filled = DepthWarp(DepthWarpConfig(fill_holes=fill, resample="nearest")).synthesize(view, ahead).view
         drawn = raw.depth > 0
         np.testing.assert_array_equal(filled.rgb[drawn], raw.rgb[drawn])
         np.testing.assert_array_equal(filled.depth, raw.depth)  # filled pixels keep unknown depth

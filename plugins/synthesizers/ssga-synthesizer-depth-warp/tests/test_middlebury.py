@@ -54,9 +54,9 @@ def test_warped_left_image_matches_the_right_image(pair):
     unwarped = psnr(left, right, covered)
     wrong = forward_warp(left, depth, intrinsics(CX_LEFT), intrinsics(CX_RIGHT), right_from_left(-1.0))
     wrong_sign = psnr(wrong.rgb, right, wrong.covered)
-    # Measured: 26.9 dB warped, 12.9 dB unwarped, 10.2 dB with the wrong sign; 83% covered.
+    # Measured: 27.4 dB warped, 12.9 dB unwarped, 10.2 dB with the wrong sign; 83% covered.
     assert 0.80 < covered.mean() < 0.86
-    assert warped > 25.0
+    assert warped > 27.0
     assert warped > unwarped + 8.0
     assert warped > wrong_sign + 8.0
 
@@ -89,3 +89,19 @@ def test_hole_filling_beats_black_holes(pair):
         assert 0.05 < holes.mean() < 0.15, fill
         # Measured about 16 dB against the real image on the filled pixels; black gives 9 dB.
         assert psnr(filled.rgb, right, holes) > psnr(bare.rgb, right, holes) + 5.0, fill
+
+
+def test_bilinear_reads_and_footprints_beat_one_pixel_per_point(pair):
+    left, right, _, depth = pair
+    args = (left, depth, intrinsics(CX_LEFT), intrinsics(CX_RIGHT), right_from_left())
+    single = forward_warp(*args, resample="nearest")  # one pixel per point, its own colour
+    bilinear = forward_warp(*args)
+    # Measured on the pixels both draw: 27.5 dB against 26.9.
+    assert psnr(bilinear.rgb, right, single.covered) > psnr(single.rgb, right, single.covered) + 0.4
+    # Adaptive footprints add 1.2% of the pixels, at 22.6 dB; let them span depth edges
+    # and they add 2.5%, at 17.8 dB: foreground and background smeared into each other.
+    adaptive = forward_warp(*args, footprint="adaptive")
+    smeared = forward_warp(*args, footprint="adaptive", depth_edge=1.0)
+    added, spread = adaptive.covered & ~single.covered, smeared.covered & ~single.covered
+    assert 0.005 < added.mean() < spread.mean()
+    assert psnr(adaptive.rgb, right, added) > psnr(smeared.rgb, right, spread) + 3.0

@@ -24,8 +24,15 @@ def test_is_discovered_by_a_fresh_plugin_manager():
 
 @pytest.mark.parametrize(
     "config",
-    [DepthWarpConfig(), DepthWarpConfig(splat=2, fill_holes="none"), DepthWarpConfig(splat=3, fill_holes="inpaint", max_hole=4)],
-    ids=["default", "splat2-raw", "splat3-inpaint"],
+    [
+        DepthWarpConfig(),
+        DepthWarpConfig(splat=2, fill_holes="none"),
+        DepthWarpConfig(splat=3, fill_holes="inpaint", max_hole=4),
+        DepthWarpConfig(resample="nearest"),
+        DepthWarpConfig(footprint="adaptive"),
+        DepthWarpConfig(footprint="adaptive", resample="nearest", max_footprint=4, depth_edge=0.2),
+    ],
+    ids=["default", "splat2-raw", "splat3-inpaint", "v0.1", "adaptive", "adaptive-nearest"],
 )
 def test_meets_the_synthesizer_contract(config):
     check_synthesizer(DepthWarp(config))
@@ -44,8 +51,21 @@ def test_a_view_without_depth_is_refused():
 
 
 def test_config_is_validated():
-    assert DepthWarpConfig() == DepthWarpConfig(splat=1, fill_holes="nearest", max_hole=8, max_depth=50.0)
-    for bad in ({"splat": 0}, {"splat": 5}, {"fill_holes": "blur"}, {"max_depth": 0.0}, {"max_hole": 1}, {"radius": 2}):
+    assert DepthWarpConfig() == DepthWarpConfig(
+        splat=1,
+        footprint="square",
+        max_footprint=32,
+        resample="bilinear",
+        depth_edge=0.03,
+        fill_holes="nearest",
+        max_hole=16,
+        max_depth=50.0,
+    )
+    bad_values = (
+        {"splat": 0}, {"splat": 5}, {"fill_holes": "blur"}, {"max_depth": 0.0}, {"max_hole": 1}, {"radius": 2},
+        {"footprint": "round"}, {"resample": "cubic"}, {"max_footprint": 0}, {"depth_edge": 0.0}, {"depth_edge": 2.0},
+    )  # fmt: skip
+    for bad in bad_values:
         with pytest.raises(ValidationError):
             DepthWarpConfig(**bad)
     for name, params in DepthWarp.presets.items():
