@@ -151,6 +151,5 @@ def test_the_oracle_renders_the_truth_with_an_exact_point_map():
     shift = moved.target_uv[moved.visible] - source.camera.pixel_grid()[moved.visible]
     np.testing.assert_allclose(shift, np.broadcast_to([-12.8, 0.0], shift.shape), atol=1e-2)
     assert 0.9 < moved.visible.mean() < 0.96  # the strip that left the image
-    turned = moved
-    both = TrueRender(workspace).synthesize_from([source, source], turned.view.pose)
+    both = TrueRender(workspace).synthesize_from([source, source], moved.view.pose)
     assert both[0].view is both[1].view  # rendered once for every source

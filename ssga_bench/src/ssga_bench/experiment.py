@@ -112,10 +112,11 @@ class TrainingPlan:
     pseudo: list[PseudoView]
     pose_groups: list[int]
 
-    def groups(self, real_graphs: int) -> np.ndarray:
+    def groups(self, real_graphs: int, synthesizes: bool) -> np.ndarray:
         """The group of every training graph (:func:`ssga_core.pipeline.training_graphs`'s order):
-        the real graphs each their own, then the pseudo-views'."""
-        return np.concatenate([np.arange(real_graphs), real_graphs + np.asarray(self.pose_groups, dtype=np.int64)]).astype(np.int64)
+        the real graphs each their own, then, for a variant with S, the pseudo-views'."""
+        pseudo = real_graphs + np.asarray(self.pose_groups if synthesizes else [], dtype=np.int64)
+        return np.concatenate([np.arange(real_graphs), pseudo]).astype(np.int64)
 
 
 def training_plan(dataset: Dataset, config: TrainingConfig, views: Views) -> TrainingPlan:
@@ -266,9 +267,10 @@ def run_variant(
     graphs, labels = training_graphs(
         bound, plan.cells, plan.pseudo, real_for_every_class=training.real_for_every_class, memo=cache, progress=progress
     )
-    real_graphs = len(graphs) - (len(plan.pseudo) if bound.synthesizer is not None else 0)
+    synthesizes = bound.synthesizer is not None
+    groups = plan.groups(len(graphs) - (len(plan.pseudo) if synthesizes else 0), synthesizes)
     with timings.phase("train"):
-        model, report = train_gcn(graphs, np.array(labels), dataset.num_classes, training, groups=plan.groups(real_graphs)[: len(graphs)])
+        model, report = train_gcn(graphs, np.array(labels), dataset.num_classes, training, groups=groups)
     save_gcn(model, folder / "gcn.pt")
 
     def query_graphs(split: str) -> list[SceneGraph]:
