@@ -20,6 +20,14 @@ _EXPORTS = {
     "BoWDescriptor": "ssga_bench.bow",
     "BoWDescriptorConfig": "ssga_bench.bow",
     "NotFittedError": "ssga_bench.bow",
+    # learned (torch) stages: weights, device, strict checkpoint loading
+    "Learned": "ssga_bench.learned",
+    "LearnedConfig": "ssga_bench.learned",
+    "RANDOM_WEIGHTS": "ssga_bench.learned",
+    "load_checkpoint": "ssga_bench.learned",
+    "load_strict": "ssga_bench.learned",
+    "checkpoint_bytes": "ssga_bench.learned",
+    "resolve_device": "ssga_bench.learned",
     # files: atomic writes, one-line read errors
     "OutputError": "ssga_bench.io",
     "atomic_write_bytes": "ssga_bench.io",

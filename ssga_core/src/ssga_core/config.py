@@ -259,6 +259,9 @@ class Resolver:
             if len(stages) < len(variant.order):
                 continue
             label = spec.label or table_label(variant, stages["parser"].cls if "parser" in stages else None, stages["descriptor"].cls)
+            caveats = sorted({c for s in stages.values() if (c := s.cls.caveat(s.config))})
+            if caveats:
+                label += f" [{', '.join(caveats)}]"
             if label in labels:
                 self.problems.append(
                     f"{format_loc((*here, 'variant'))}: label {label!r} is also variants[{labels[label]}]'s; "

@@ -59,6 +59,16 @@ class Stage(ABC):
         """Short name used in table labels: ``abbrev`` if set, else ``name``."""
         return cls.abbrev or cls.name
 
+    @classmethod
+    def caveat(cls, config: StageConfig) -> str:
+        """What every reader of a result made with this config must be told, or ``""``.
+
+        A learned stage on random weights says ``"random weights"``: such output is for
+        tests only, never a result, so the core appends the caveat to every variant
+        label the stage takes part in (and so to every table, plot and file named by it).
+        """
+        return ""
+
     def _require(self, view: View) -> None:
         missing = set(self.consumes) & {Data.RGB, Data.DEPTH, Data.SEMANTIC} - view.available
         if missing:

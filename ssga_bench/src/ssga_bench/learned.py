@@ -1,0 +1,135 @@
+"""What every learned (torch) stage shares: the ``weights`` and ``device`` fields, strict
+checkpoint loading with one-line errors, and the "random weights" caveat.
+
+A learned plugin's config subclasses :class:`LearnedConfig` (beside its other bases) and
+its stage class mixes in :class:`Learned`::
+
+    class PnvConfig(BoWDescriptorConfig, LearnedConfig):
+        weights: str = Field(default="pnv-light.pt", description=WEIGHTS_HELP)
+
+    class Pnv(Learned, BoWDescriptor):
+        def _network(self):
+            state = load_checkpoint(self.weights_file(HERE / "weights"), self)
+            load_strict(net, state["state_dict"], self, path)
+
+Conventions (the same in every learned plugin):
+
+* ``weights`` names the checkpoint: a path (relative paths are looked up in the plugin's
+  own ``weights/`` folder first, then the working directory), or ``"random"``: random
+  initialisation, **for tests only**. A stage on random weights returns the caveat
+  ``"random weights"``, which the core appends to every label it takes part in.
+* Checkpoints load with ``torch.load(..., weights_only=True)`` and strict
+  ``load_state_dict``: a missing file, a file torch cannot read, and a state dict whose
+  keys or shapes differ from the network's each raise a one-line
+  :class:`~ssga_core.errors.CheckpointError` naming the config field, the file and what
+  was expected.
+* ``device``: ``"auto"`` (CUDA when present), ``"cpu"`` or ``"cuda"``.
+"""
+
+from __future__ import annotations
+
+import io
+from pathlib import Path
+from typing import Any, Literal
+
+import torch
+from pydantic import Field
+
+from ssga_core.errors import CheckpointError, InputError
+from ssga_core.stages import StageConfig
+
+RANDOM_WEIGHTS = "random"
+"""The ``weights`` value for random initialisation (tests only; every output says so)."""
+
+Device = Literal["auto", "cpu", "cuda"]
+
+
+class LearnedConfig(StageConfig):
+    """The fields of every learned stage; subclasses give ``weights`` its default and help."""
+
+    weights: str = Field(
+        default=RANDOM_WEIGHTS,
+        min_length=1,
+        description="Checkpoint file (relative: the plugin's weights/ folder, then the working directory), or 'random' (tests only).",
+    )
+    device: Device = Field(default="auto", description="Where the network runs: 'auto' (CUDA when present), 'cpu' or 'cuda'.")
+
+
+class Learned:
+    """Mixin for a stage whose config is a :class:`LearnedConfig`."""
+
+    config: Any
+    name: str
+    kind: str
+
+    @classmethod
+    def caveat(cls, config: Any) -> str:
+        return "random weights" if getattr(config, "weights", None) == RANDOM_WEIGHTS else ""
+
+    @property
+    def random_weights(self) -> bool:
+        return self.config.weights == RANDOM_WEIGHTS
+
+    @property
+    def device(self) -> torch.device:
+        return resolve_device(self.config.device, f"{self.kind} {self.name!r}")
+
+    def weights_file(self, packaged: Path | None = None) -> Path:
+        """The checkpoint ``config.weights`` names (it must exist), looked up in ``packaged`` first."""
+        return find_weights(self.config.weights, packaged, f"{self.kind} {self.name!r}")
+
+
+def resolve_device(choice: str, who: str = "stage") -> torch.device:
+    if choice == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    if choice == "cuda" and not torch.cuda.is_available():
+        raise InputError(f"{who}: device = 'cuda', but this torch ({torch.__version__}) sees no CUDA device; use 'auto' or 'cpu'")
+    return torch.device(choice)
+
+
+def find_weights(value: str, packaged: Path | None, who: str) -> Path:
+    if value == RANDOM_WEIGHTS:
+        raise ValueError("random weights have no file")
+    path = Path(value).expanduser()
+    candidates = [path] if path.is_absolute() else [*([packaged / path] if packaged else []), Path.cwd() / path]
+    for candidate in candidates:
+        if candidate.is_file():
+            return candidate
+    where = " or ".join(str(c) for c in candidates)
+    raise CheckpointError(f"{who}: config field 'weights' = {value!r}: no such file (looked for {where}); set 'weights' to a checkpoint file")
+
+
+def load_checkpoint(path: Path, who: str, expected: str = "a torch checkpoint") -> Any:
+    """``torch.load(path, weights_only=True)`` on the CPU; any failure is one :class:`CheckpointError` line."""
+    try:
+        return torch.load(path, map_location="cpu", weights_only=True)
+    except FileNotFoundError:
+        raise CheckpointError(f"{who}: config field 'weights': {path}: no such file; expected {expected}") from None
+    except Exception as exc:  # torch raises many kinds (pickle, zip, unpickler) for one cause: not a readable checkpoint
+        reason = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        raise CheckpointError(f"{who}: config field 'weights': {path} is not a readable checkpoint ({reason[:160]}); expected {expected}") from None
+
+
+def load_strict(module: torch.nn.Module, state: Any, who: str, path: Path | str, expected: str = "") -> None:
+    """``module.load_state_dict(state, strict=True)``, with mismatches said in one line (first keys of each kind)."""
+    what = expected or f"the {type(module).__name__} layout"
+    if not isinstance(state, dict) or not all(isinstance(v, torch.Tensor) for v in state.values()):
+        raise CheckpointError(f"{who}: config field 'weights': {path} holds no state dict of tensors; expected {what}")
+    own = module.state_dict()
+    missing = [k for k in own if k not in state]
+    unexpected = [k for k in state if k not in own]
+    shapes = [f"{k} {tuple(state[k].shape)} (expected {tuple(own[k].shape)})" for k in own if k in state and state[k].shape != own[k].shape]
+    problems = []
+    for title, keys in (("missing", missing), ("unexpected", unexpected), ("wrong shape", shapes)):
+        if keys:
+            problems.append(f"{len(keys)} {title}: {', '.join(keys[:3])}{', ...' if len(keys) > 3 else ''}")
+    if problems:
+        raise CheckpointError(f"{who}: config field 'weights': {path} does not match {what}: {'; '.join(problems)}")
+    module.load_state_dict(state, strict=True)
+
+
+def checkpoint_bytes(obj: Any) -> bytes:
+    """A checkpoint serialised in memory (write it with :func:`ssga_bench.io.atomic_write_bytes`)."""
+    buffer = io.BytesIO()
+    torch.save(obj, buffer)
+    return buffer.getvalue()

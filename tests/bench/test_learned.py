@@ -1,0 +1,67 @@
+"""The learned-stage kit: checkpoint errors are one line naming the field and file; random weights are labelled."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+
+from ssga_bench.learned import Learned, LearnedConfig, checkpoint_bytes, find_weights, load_checkpoint, load_strict, resolve_device
+from ssga_core.errors import CheckpointError, InputError
+
+
+def net() -> torch.nn.Module:
+    return torch.nn.Sequential(torch.nn.Conv2d(3, 4, 3), torch.nn.ReLU(), torch.nn.Conv2d(4, 2, 1))
+
+
+def test_a_matching_checkpoint_loads_strictly(tmp_path):
+    source = net()
+    path = tmp_path / "w.pt"
+    path.write_bytes(checkpoint_bytes({"state_dict": source.state_dict()}))
+    target = net()
+    load_strict(target, load_checkpoint(path, "descriptor 'x'")["state_dict"], "descriptor 'x'", path)
+    assert all(torch.equal(a, b) for a, b in zip(source.state_dict().values(), target.state_dict().values()))
+
+
+def test_mismatched_keys_and_shapes_are_named(tmp_path):
+    state = net().state_dict()
+    state["2.weight"] = torch.zeros(5, 4, 1, 1)
+    state["extra"] = torch.zeros(1)
+    del state["0.bias"]
+    with pytest.raises(CheckpointError) as err:
+        load_strict(net(), state, "descriptor 'x'", tmp_path / "w.pt")
+    message = str(err.value)
+    assert "\n" not in message and "'weights'" in message and "w.pt" in message
+    assert "1 missing: 0.bias" in message and "1 unexpected: extra" in message and "2.weight (5, 4, 1, 1)" in message
+
+
+def test_corrupt_and_missing_files_are_one_line(tmp_path):
+    bad = tmp_path / "bad.pt"
+    bad.write_bytes(b"not a checkpoint")
+    with pytest.raises(CheckpointError, match="bad.pt is not a readable checkpoint") as err:
+        load_checkpoint(bad, "parser 'y'")
+    assert "\n" not in str(err.value)
+    with pytest.raises(CheckpointError, match="'weights' = 'nope.pt': no such file"):
+        find_weights("nope.pt", tmp_path, "parser 'y'")
+
+
+def test_a_packaged_file_is_found_before_the_working_directory(tmp_path, monkeypatch):
+    (tmp_path / "pkg").mkdir()
+    (tmp_path / "pkg" / "w.pt").write_bytes(b"x")
+    monkeypatch.chdir(tmp_path)
+    assert find_weights("w.pt", tmp_path / "pkg", "s") == tmp_path / "pkg" / "w.pt"
+
+
+def test_random_weights_carry_a_caveat():
+    class Stage(Learned):
+        pass
+
+    assert Stage.caveat(LearnedConfig()) == "random weights"
+    assert Stage.caveat(LearnedConfig(weights="w.pt")) == ""
+
+
+def test_cuda_asked_without_cuda_is_an_error():
+    if torch.cuda.is_available():
+        pytest.skip("this machine has CUDA")
+    assert resolve_device("auto").type == "cpu"
+    with pytest.raises(InputError, match="sees no CUDA device"):
+        resolve_device("cuda")
