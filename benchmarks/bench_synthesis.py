@@ -23,13 +23,13 @@ from ssga_synthesizer_depth_warp.plugin import DepthWarp, DepthWarpConfig  # noq
 POSES = 32
 CONFIGS = {
     "default": {},
-    "v0.1": {"resample": "nearest", "max_hole": 8},
-    "raw": {"fill_holes": "none"},
-    "v0.1-raw": {"resample": "nearest", "fill_holes": "none"},
-    "inpaint": {"fill_holes": "inpaint"},
-    "closed": {"splat": 2},
-    "adaptive": {"footprint": "adaptive"},
-    "adaptive-raw": {"footprint": "adaptive", "fill_holes": "none"},
+    "default-raw": {"fill_holes": "none"},
+    "v0.1": {"footprint": "square", "resample": "nearest", "max_hole": 8},
+    "v0.1-raw": {"footprint": "square", "resample": "nearest", "fill_holes": "none"},
+    "square": {"footprint": "square"},
+    "square-raw": {"footprint": "square", "fill_holes": "none"},
+    "square-inpaint": {"footprint": "square", "fill_holes": "inpaint"},
+    "closed": {"footprint": "square", "splat": 2},
 }
 
 

@@ -13,7 +13,7 @@ from ssga_core import Camera, Pose, View
 from ssga_core.testing import make_view
 
 RAW = DepthWarpConfig(footprint="adaptive", fill_holes="none")
-SQUARE_RAW = DepthWarpConfig(resample="nearest", fill_holes="none")
+SQUARE_RAW = DepthWarpConfig(footprint="square", resample="nearest", fill_holes="none")
 """One pixel per point, its own colour: the 0.1 warp without hole filling."""
 RED, GREY = (255, 0, 0), (128, 128, 128)
 
@@ -179,10 +179,10 @@ def test_small_holes_read_the_surface_where_they_map_back():
     c = np.array(view.camera.principal_point, dtype=np.float32)
     source = c + (view.camera.pixel_grid() - c) / 1.2
     expected = cv2.remap(view.rgb, source[..., 0], source[..., 1], cv2.INTER_LINEAR).astype(int)
-    filled = DepthWarp().synthesize(view, target).view
+    filled = DepthWarp(DepthWarpConfig(footprint="square")).synthesize(view, target).view
     assert (filled.depth == 0).mean() > 0.25  # they stay holes: depth unknown
     assert np.abs(filled.rgb[1:-1, 1:-1] - expected[1:-1, 1:-1]).max() <= 2
-    copied = DepthWarp(DepthWarpConfig(resample="nearest")).synthesize(view, target).view
+    copied = DepthWarp(DepthWarpConfig(footprint="square", resample="nearest")).synthesize(view, target).view
     assert np.abs(copied.rgb[1:-1, 1:-1] - expected[1:-1, 1:-1]).max() > 50  # a neighbour's colour, across edges
 
 
@@ -216,12 +216,12 @@ def test_surface_links_are_computed_once_per_view(monkeypatch):
         return surface_links(*args, **kwargs)
 
     monkeypatch.setattr(plugin, "surface_links", counting)
-    synthesizer = DepthWarp()
+    synthesizer = DepthWarp(DepthWarpConfig(footprint="square"))
     view, other = make_view(seed=1), make_view(seed=2)
     for dx in (0.1, 0.2, 0.3):
         synthesizer.synthesize(view, right_of(view.pose, dx))
     assert len(calls) == 1
     synthesizer.synthesize(other, other.pose)
     assert len(calls) == 2
-    DepthWarp(DepthWarpConfig(resample="nearest")).synthesize(view, view.pose)
+    DepthWarp(DepthWarpConfig(footprint="square", resample="nearest")).synthesize(view, view.pose)
     assert len(calls) == 2  # one pixel per point and its own colour need no links

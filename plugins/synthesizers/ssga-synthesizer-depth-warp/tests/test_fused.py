@@ -10,7 +10,7 @@ from ssga_synthesizer_depth_warp.warp import Source, forward_warp, forward_warp_
 from ssga_core import InputError, Pose, View
 from ssga_core.testing import make_view
 
-RAW = DepthWarpConfig(fill_holes="none")
+RAW = DepthWarpConfig(footprint="square", fill_holes="none")
 RED = (255, 0, 0)
 
 
@@ -69,7 +69,7 @@ def test_a_point_behind_another_views_nearer_surface_is_not_visible():
 def test_one_view_gives_exactly_the_single_render():
     view = make_view(seed=3)
     target = Pose(view.pose.x + 0.4, view.pose.y - 0.2, view.pose.yaw + 0.3)
-    synthesizer = DepthWarp()
+    synthesizer = DepthWarp(DepthWarpConfig(footprint="square"))
     (fused,) = synthesizer._synthesize_from([view], target)
     single = synthesizer.synthesize(view, target)
     for name in ("rgb", "depth"):
@@ -81,7 +81,7 @@ def test_one_view_gives_exactly_the_single_render():
 def test_all_views_share_one_synthetic_view_with_the_fused_depth():
     a, b = halves()
     target = right_of(a.pose, 0.1)
-    syntheses = DepthWarp().synthesize_from([a, b, a], target)
+    syntheses = DepthWarp(DepthWarpConfig(footprint="square")).synthesize_from([a, b, a], target)
     assert len(syntheses) == 3 and all(s.view is syntheses[0].view for s in syntheses)
     fused = syntheses[0].view
     assert fused.synthetic and fused.pose == target and fused.camera == a.camera
@@ -95,7 +95,7 @@ def test_holes_are_filled_once_after_fusion():
     a_depth, b_depth = view.depth.copy(), view.depth.copy()
     a_depth[:, 60:64] = 0.0  # a crack that only the other view covers
     a_depth[:, 100:104] = b_depth[:, 100:104] = 0.0  # and one that neither does
-    fused = DepthWarp().synthesize_from([with_depth(view, a_depth), with_depth(view, b_depth)], view.pose)[0].view
+    fused = DepthWarp(DepthWarpConfig(footprint="square")).synthesize_from([with_depth(view, a_depth), with_depth(view, b_depth)], view.pose)[0].view
     np.testing.assert_array_equal(fused.rgb[:, 60:64], view.rgb[:, 60:64])  # drawn by b, not guessed
     assert (fused.depth[:, 60:64] == 3.0).all()
     assert (fused.depth[:, 100:104] == 0).all() and fused.rgb[:, 100:104].any(axis=-1).all()  # filled

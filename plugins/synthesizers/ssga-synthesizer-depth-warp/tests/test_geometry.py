@@ -13,8 +13,8 @@ from ssga_synthesizer_depth_warp.warp import fill_holes, forward_warp
 from ssga_core import Camera, InputError, Pose, View
 from ssga_core.testing import make_view
 
-RAW = DepthWarpConfig(fill_holes="none")
-SQUARE_RAW = DepthWarpConfig(resample="nearest", fill_holes="none")
+RAW = DepthWarpConfig(footprint="square", fill_holes="none")
+SQUARE_RAW = DepthWarpConfig(footprint="square", resample="nearest", fill_holes="none")
 """One pixel per point, its own colour: the 0.1 warp without hole filling."""
 
 
@@ -26,7 +26,7 @@ def right_of(pose: Pose, metres: float) -> Pose:
 @pytest.mark.parametrize("splat", [1, 2, 3])
 def test_same_pose_changes_nothing(splat):
     view = make_view(seed=3)
-    syn = DepthWarp(DepthWarpConfig(splat=splat)).synthesize(view, view.pose)
+    syn = DepthWarp(DepthWarpConfig(footprint="square", splat=splat)).synthesize(view, view.pose)
     assert syn.visible.all()
     np.testing.assert_allclose(syn.target_uv, view.camera.pixel_grid(), atol=1e-3)
     np.testing.assert_array_equal(syn.view.rgb, view.rgb)
@@ -78,7 +78,7 @@ def test_moving_forward_enlarges_about_the_centre():
 def test_moving_back_keeps_every_point_of_the_surface_visible():
     view = make_view(seed=2)
     back = Pose(view.pose.x - 1.0, view.pose.y, view.pose.yaw)  # the wall is now 4 m away
-    syn = DepthWarp().synthesize(view, back)
+    syn = DepthWarp(DepthWarpConfig(footprint="square")).synthesize(view, back)
     c = np.array(view.camera.principal_point, dtype=np.float32)
     np.testing.assert_allclose(syn.target_uv - c, 0.75 * (view.camera.pixel_grid() - c), atol=1e-3)
     # Up to four points share a target pixel; all of them are on the front surface.
@@ -95,10 +95,10 @@ def test_larger_splats_and_hole_filling_close_the_cracks():
     raw = DepthWarp(SQUARE_RAW).synthesize(view, ahead).view
     assert (raw.depth == 0).mean() > 0.25
     for splat in (2, 3):
-        config = DepthWarpConfig(splat=splat, resample="nearest", fill_holes="none")
+        config = DepthWarpConfig(footprint="square", splat=splat, resample="nearest", fill_holes="none")
         assert (DepthWarp(config).synthesize(view, ahead).view.depth > 0).all()
     for fill in ("nearest", "inpaint"):
-        filled = DepthWarp(DepthWarpConfig(fill_holes=fill, resample="nearest")).synthesize(view, ahead).view
+        filled = DepthWarp(DepthWarpConfig(footprint="square", fill_holes=fill, resample="nearest")).synthesize(view, ahead).view
         drawn = raw.depth > 0
         np.testing.assert_array_equal(filled.rgb[drawn], raw.rgb[drawn])
         np.testing.assert_array_equal(filled.depth, raw.depth)  # filled pixels keep unknown depth
@@ -144,7 +144,7 @@ def occlusion_view() -> View:
 @pytest.mark.parametrize("splat", [1, 2])
 def test_near_object_hides_the_wall_behind_it(splat):
     view = occlusion_view()
-    syn = DepthWarp(DepthWarpConfig(splat=splat, fill_holes="none")).synthesize(view, right_of(view.pose, 0.3))
+    syn = DepthWarp(DepthWarpConfig(footprint="square", splat=splat, fill_holes="none")).synthesize(view, right_of(view.pose, 0.3))
     # The wall moves 12.8 px left, the box 25.6 px: the box lands on target columns 70..133
     # and covers the wall from source columns 83..95.
     assert not syn.visible[96:160, 84:95].any()
@@ -160,7 +160,7 @@ def test_near_object_hides_the_wall_behind_it(splat):
 def test_points_behind_the_target_camera_are_nan():
     view = make_view()
     beyond = Pose(view.pose.x + 4.0, view.pose.y, view.pose.yaw)  # past the wall 3 m ahead
-    syn = DepthWarp().synthesize(view, beyond)
+    syn = DepthWarp(DepthWarpConfig(footprint="square")).synthesize(view, beyond)
     assert np.isnan(syn.target_uv).all() and not syn.visible.any()
     assert not syn.view.rgb.any() and not syn.view.depth.any()
 
@@ -176,7 +176,7 @@ def test_unknown_and_too_far_depths_are_skipped():
     syn = DepthWarp(RAW).synthesize(holed, holed.pose)
     assert np.isnan(syn.target_uv[:40]).all() and not syn.visible[:40].any()
     assert not syn.view.rgb[:40].any() and syn.visible[40:].all()
-    farther = DepthWarp(DepthWarpConfig(max_depth=100.0, fill_holes="none")).synthesize(holed, holed.pose)
+    farther = DepthWarp(DepthWarpConfig(footprint="square", max_depth=100.0, fill_holes="none")).synthesize(holed, holed.pose)
     assert farther.visible[30:40].all()
 
 

@@ -53,7 +53,7 @@ def test_a_view_without_depth_is_refused():
 def test_config_is_validated():
     assert DepthWarpConfig() == DepthWarpConfig(
         splat=1,
-        footprint="square",
+        footprint="adaptive",
         max_footprint=32,
         resample="bilinear",
         depth_edge=0.03,
