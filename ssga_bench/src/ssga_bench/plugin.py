@@ -13,7 +13,7 @@ from ssga_core import hookimpl
 
 @hookimpl
 def ssga_register_commands(app: typer.Typer) -> None:
-    from ssga_bench.cli import config, run, workspace
+    from ssga_bench.cli import config, extract, run, workspace
 
-    for module in (config, run, workspace):
+    for module in (config, run, workspace, extract):
         module.register(app)

@@ -1,4 +1,4 @@
-"""The benchmark layer's commands (``run``, ``demo``, ``bench``, ``workspace``, ``config``).
+"""The benchmark layer's commands (``run``, ``demo``, ``bench``, ``workspace``, ``config``, ``extract``).
 
 Each module has a ``register(app)`` that the plugin hook calls; each command is a thin
 wrapper over a keyword-only library function of :mod:`ssga_bench`.
@@ -6,12 +6,15 @@ wrapper over a keyword-only library function of :mod:`ssga_bench`.
 
 from __future__ import annotations
 
+import tomllib
 from collections.abc import Iterator
 from contextlib import contextmanager
 from typing import Any
 
 from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
+
+from ssga_core.errors import InputError
 
 
 class Bars:
@@ -41,3 +44,15 @@ def progress_bars(*, transient: bool = True) -> Iterator[Bars]:
     columns = (TextColumn("{task.description:<32}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(), TimeRemainingColumn())
     with Progress(*columns, console=console, transient=transient) as progress:
         yield Bars(progress, console)
+
+
+def parse_option(text: str) -> tuple[str, Any]:
+    """``key=value`` with a TOML value (``rooms=5``, ``shading=false``, ``path="a b.glb"``), or a bare string."""
+    key, sep, value = text.partition("=")
+    if not sep or not key.strip():
+        raise InputError(f"--option {text!r}: expected key=value")
+    try:
+        parsed = tomllib.loads(f"v = {value}")["v"]
+    except tomllib.TOMLDecodeError:
+        parsed = value
+    return key.strip(), parsed

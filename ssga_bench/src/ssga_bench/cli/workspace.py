@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import tomllib
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -11,24 +10,12 @@ from pydantic import ValidationError
 
 from ssga_core.cli import command, current_registry
 from ssga_core.config import pydantic_problems, resolve_stage
-from ssga_core.errors import ConfigError, InputError
-from ssga_bench.cli import progress_bars
+from ssga_core.errors import ConfigError
+from ssga_bench.cli import parse_option, progress_bars
 
 workspace_app = typer.Typer(
     help="Build benchmark workspaces (cells, classes, rendered views) and look at them.", no_args_is_help=True, rich_markup_mode=None
 )
-
-
-def parse_option(text: str) -> tuple[str, Any]:
-    """``key=value`` with a TOML value (``rooms=5``, ``shading=false``, ``path="a b.glb"``), or a bare string."""
-    key, sep, value = text.partition("=")
-    if not sep or not key.strip():
-        raise InputError(f"--option {text!r}: expected key=value")
-    try:
-        parsed = tomllib.loads(f"v = {value}")["v"]
-    except tomllib.TOMLDecodeError:
-        parsed = value
-    return key.strip(), parsed
 
 
 def build_cli(
