@@ -465,3 +465,45 @@ def test_variants_of_a_config_as_json_with_the_orders(workdir):
     assert len(data["orders"]) == 11 and data["orders"][0]["order"] == "PDS"
     assert [v["label"] for v in data["variants"]] == ["PC-ST (PDS)", "PC-ST (PD)"]
     assert data["variants"][1] == {"label": "PC-ST (PD)", "variant": "PD", "parser": "test-stripes", "descriptor": "test-patch-colour", "synthesizer": None}
+
+
+# --- 10. A variant whose checkpoint is missing is reported as not run; the others run ---
+
+
+def test_a_variant_without_its_weights_is_reported_not_dropped(tmp_path, dataset, ssga_plugin_set, stand_ins):
+    from ssga_bench.learned import Learned, LearnedConfig
+    from ssga_core import hookimpl
+    from ssga_core.testing.stages import PatchColour
+
+    class Unweighted(Learned, PatchColour):
+        name = "test-unweighted"
+        abbrev = "UW"
+        Config = type("UnweightedConfig", (LearnedConfig,), {})
+
+        def _extract(self, view):
+            self.weights_file()  # the checkpoint is looked up when first needed, as a learned stage does
+            return super()._extract(view)
+
+    class Plugin:
+        @hookimpl
+        def ssga_register_descriptors(self):
+            return [Unweighted]
+
+    ssga_plugin_set.register(Plugin(), "unweighted")
+    registry = ssga_plugin_set.registry()
+    exp = validate_experiment(
+        {
+            "workspace": {"name": "test-wall"},
+            "stages": STAGES,
+            "variants": ["PD", {"variant": "D", "descriptor": {"name": "test-unweighted", "weights": "absent.pt"}}],
+            "fuser": {"name": "rrf"},
+            "training": {"epochs": 2, "hidden": 16},
+        },
+        registry,
+    )
+    report, _ = run_experiment(exp, dataset, tmp_path / "run")
+    assert report.variants == ["PC-ST (PD)"]
+    assert list(report.not_run) == ["UW (D)"] and "'weights' = 'absent.pt'" in report.not_run["UW (D)"]
+    markdown = report.markdown()
+    assert "| UW (D) ⚠ | not run |" in markdown and "- UW (D): not run, no weights:" in markdown
+    assert "UW (D),not run" in report.csv()

@@ -224,6 +224,8 @@ class Report:
     true_ranks: dict[str, np.ndarray] = field(repr=False)
     """Rank of the true class per query, for every scored row."""
     masks: dict[str, np.ndarray] = field(repr=False)
+    not_run: dict[str, str] = field(default_factory=dict)
+    """Variants that could not run (a checkpoint that is not there), with why: shown, never dropped."""
 
     @classmethod
     def build(
@@ -239,6 +241,7 @@ class Report:
         best_single_basis: str = "validation",
         references: Mapping[str, np.ndarray] | None = None,
         flags: Mapping[str, str] | None = None,
+        not_run: Mapping[str, str] | None = None,
     ) -> Report:
         """Score every row.
 
@@ -253,6 +256,8 @@ class Report:
             references: further ``(Q, C)`` rows (baselines, oracles), shown after the ensemble.
             flags: a warning per row label, shown beside it; ``at chance`` is added to
                 every scored row whose all-views MRR interval holds the random MRR.
+            not_run: variants without scores (their weights are missing) and why; each
+                is listed in the tables as not run.
         """
         references, flags = dict(references or {}), dict(flags or {})
         truth = np.asarray(truth)
@@ -290,7 +295,7 @@ class Report:
             rows.append(row(f"best single ({best_single_basis}): {best_single}", "best single", best_single))
         rows += [row(r, "reference") for r in references]
         rows.append(Row("random", "random", {g: {m: exact(v, counts[g]) for m, v in chance.items()} for g in masks}))
-        return cls(title, {r.label: r for r in rows}, counts, num_classes, rank, masks)
+        return cls(title, {r.label: r for r in rows}, counts, num_classes, rank, masks, dict(not_run or {}))
 
     # -- what the rows are -----------------------------------------------------------
 
@@ -345,6 +350,8 @@ class Report:
         lines = [head, "|---|" + "---:|" * (len(metrics) * len(groups))]
         for label, row in self.rows.items():
             lines.append(f"| {self._name(label)} | " + " | ".join(row.stats[g][m].text() for m in metrics for g in groups) + " |")
+        for label in self.not_run:
+            lines.append(f"| {label} ⚠ | " + " | ".join("not run" for _ in metrics for _ in groups) + " |")
         return lines + [""]
 
     def comparison_lines(self, metric: str = "mrr") -> list[str]:
@@ -372,6 +379,7 @@ class Report:
             lines += ["#### By group", "", *self._table(METRICS, [*self.other_groups, "all"])]
         lines += ["#### Recall@N (R@1 is Top-1, R@5 is Top-5)", "", *self._table(RECALLS, list(self.counts))]
         flagged = [(label, row.flags) for label, row in self.rows.items() if row.flags]
+        flagged += [(label, (f"not run, {why}",)) for label, why in self.not_run.items()]
         if flagged:
             lines += ["#### Flags (⚠)", "", *(f"- {label}: {'; '.join(flags)}" for label, flags in flagged), ""]
         if self.variants:
@@ -393,6 +401,8 @@ class Report:
             for g, stats in row.stats.items():
                 values = [f"{x:.4f}" for m in ALL_METRICS for x in (stats[m].value, stats[m].low, stats[m].high)]
                 writer.writerow([label, row.kind, g, self.counts[g], *values, "; ".join(row.flags)])
+        for label, why in self.not_run.items():
+            writer.writerow([label, "not run", "all", 0, *([""] * (3 * len(ALL_METRICS))), why])
         return out.getvalue()
 
     def to_json(self) -> dict[str, Any]:
@@ -412,6 +422,7 @@ class Report:
                 }
                 for row in self.rows.values()
             ],
+            "not_run": self.not_run,
             "ensemble_vs_variant_mrr": {v: {g: self.compare(v, g).to_json() for g in self.counts} for v in self.variants},
         }
 

@@ -49,7 +49,7 @@ from ssga_bench.queries import draw_queries, save_predictions
 from ssga_bench.workspace import Workspace
 from ssga_core.config import ResolvedVariant
 from ssga_core.data import SceneGraph, View
-from ssga_core.errors import SsgaError
+from ssga_core.errors import MissingWeightsError, SsgaError
 from ssga_core.geometry import Pose
 from ssga_core.pipeline import BoundVariant, CellTraining, Progress, PseudoView, build_graph, training_graphs
 from ssga_core.stages import Fuser, Synthesizer
@@ -378,19 +378,27 @@ def run_experiment(
     with timings.phase("training plan"):
         plan = training_plan(dataset, config.training, views)
     results: dict[str, VariantResult] = {}
+    not_run: dict[str, str] = {}
     folders = folder_names(rv.label for rv in experiment.variants)
     for rv in experiment.variants:
         if variant_progress:
             variant_progress(rv.label)
         folder = out / "variants" / folders[rv.label]
-        results[rv.label] = run_variant(rv, dataset, config.training, plan, folder, cache, views, timings, progress)
+        try:
+            results[rv.label] = run_variant(rv, dataset, config.training, plan, folder, cache, views, timings, progress)
+        except MissingWeightsError as exc:
+            # A row whose checkpoint is not there is reported as such; the others still run.
+            not_run[rv.label] = f"no weights: {exc}"
+            warn(f"{rv.label}: not run: {exc}")
+    if not results:
+        raise SsgaError(f"no variant could run: {'; '.join(not_run.values())}")
 
     tests, vals = dataset.split("test"), dataset.split("val")
     truth = np.array([s.place for s in tests])
     val_truth = np.array([s.place for s in vals])
     fuser = experiment.fuser.create()
     assert isinstance(fuser, Fuser)
-    labels = [rv.label for rv in experiment.variants]
+    labels = [rv.label for rv in experiment.variants if rv.label in results]
     references: dict[str, np.ndarray] = {}
     best_single = None
     chosen = labels
@@ -413,7 +421,7 @@ def run_experiment(
     reference_variant = best_single or labels[0]
     references[f"nearest neighbour ({reference_variant})"] = results[reference_variant].nearest
 
-    oracles = [rv for rv in experiment.variants if str(rv.variant) in config.ensemble.oracle and rv.variant.synthesizes]
+    oracles = [rv for rv in experiment.variants if str(rv.variant) in config.ensemble.oracle and rv.variant.synthesizes and rv.label in results]
     workspace = _renderable(experiment) if oracles else None
     for rv in oracles if workspace is not None else []:
         if variant_progress:
@@ -438,6 +446,7 @@ def run_experiment(
             best_single=best_single,
             references=references,
             flags=flags,
+            not_run=not_run,
         )
     with timings.phase("report"):
         atomic_write_bytes(out / "report.md", report.markdown().encode())

@@ -35,7 +35,7 @@ from typing import Any, Literal
 import torch
 from pydantic import Field
 
-from ssga_core.errors import CheckpointError, InputError
+from ssga_core.errors import CheckpointError, InputError, MissingWeightsError
 from ssga_core.stages import StageConfig
 
 RANDOM_WEIGHTS = "random"
@@ -96,7 +96,7 @@ def find_weights(value: str, packaged: Path | None, who: str) -> Path:
         if candidate.is_file():
             return candidate
     where = " or ".join(str(c) for c in candidates)
-    raise CheckpointError(f"{who}: config field 'weights' = {value!r}: no such file (looked for {where}); set 'weights' to a checkpoint file")
+    raise MissingWeightsError(f"{who}: config field 'weights' = {value!r}: no such file (looked for {where}); set 'weights' to a checkpoint file")
 
 
 def load_checkpoint(path: Path, who: str, expected: str = "a torch checkpoint") -> Any:
@@ -104,7 +104,7 @@ def load_checkpoint(path: Path, who: str, expected: str = "a torch checkpoint") 
     try:
         return torch.load(path, map_location="cpu", weights_only=True)
     except FileNotFoundError:
-        raise CheckpointError(f"{who}: config field 'weights': {path}: no such file; expected {expected}") from None
+        raise MissingWeightsError(f"{who}: config field 'weights': {path}: no such file; expected {expected}") from None
     except Exception as exc:  # torch raises many kinds (pickle, zip, unpickler) for one cause: not a readable checkpoint
         reason = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
         raise CheckpointError(f"{who}: config field 'weights': {path} is not a readable checkpoint ({reason[:160]}); expected {expected}") from None

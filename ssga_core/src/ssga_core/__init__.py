@@ -18,7 +18,7 @@ import pluggy
 
 from ssga_core.config import resolve_stage
 from ssga_core.data import Data, LocalFeatures, Regions, SceneGraph, Synthesis, View, boxes_from_labels
-from ssga_core.errors import CheckpointError, ConfigError, InputError, PluginError, SsgaError, VariantSyntaxError
+from ssga_core.errors import CheckpointError, ConfigError, InputError, MissingWeightsError, PluginError, SsgaError, VariantSyntaxError
 from ssga_core.geometry import Camera, Pose
 from ssga_core.kinds import KINDS, StageKind
 from ssga_core.lazy import lazy_exports
@@ -47,6 +47,7 @@ hookimpl = pluggy.HookimplMarker("ssga")
 __all__ = [
     "Camera",
     "CheckpointError",
+    "MissingWeightsError",
     "ConfigError",
     "Data",
     "Descriptor",

@@ -61,3 +61,11 @@ class ConfigError(SsgaError):
 
 class CheckpointError(SsgaError):
     """Missing, corrupt or mismatched model weights; names the config field and the file expected."""
+
+
+class MissingWeightsError(CheckpointError):
+    """The checkpoint a stage's ``weights`` field names is not there (the other checkpoint errors: it is there but wrong).
+
+    An experiment reports the variants that need it as not run, naming the field and the
+    file, and runs the others; a damaged or mismatched file stops the run instead.
+    """

@@ -13,7 +13,7 @@ from ssga_bench.cli import parse_option, progress_bars
 
 
 def extract_cli(
-    images: Annotated[list[Path], typer.Argument(metavar="IMAGES...", help="Images to describe (PNG, JPEG, ...); other sizes than 256 x 256 are resized.")],
+    images: Annotated[list[Path], typer.Argument(metavar="IMAGES...", help="Images to describe (PNG, JPEG or any format OpenCV reads); other sizes than 256 x 256 are resized.")],
     descriptor: Annotated[str, typer.Option(metavar="NAME", help="Descriptor plugin (`ssga plugins` lists them).")],
     out: Annotated[Path, typer.Option(metavar="FILE.h5", help="HDF5 file to write (hloc's layout), whole or not at all.")],
     option: Annotated[list[str] | None, typer.Option("--option", "-o", metavar="KEY=VALUE", help="A parameter of the descriptor (or preset=NAME); repeatable.")] = None,
