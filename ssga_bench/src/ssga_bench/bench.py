@@ -116,6 +116,9 @@ def _seed_table(runs: dict[int, SeedRun]) -> list[str]:
         cells = [seeds_estimate([stats[g][m] for stats in per_seed if g in stats]).text() for m in METRICS for g in groups]
         name = f"**{key}**" if kind == "ensemble" else key
         lines.append(f"| {name} | " + " | ".join(cells) + " |")
+    for label in dict.fromkeys(label for s in seeds for label in runs[s].report.not_run):
+        if label not in kinds:
+            lines.append(f"| {label} ⚠ | " + " | ".join("not run" for _ in METRICS for _ in groups) + " |")
     return lines
 
 
@@ -177,6 +180,9 @@ def bench_summary(runs: dict[int, SeedRun]) -> str:
     thin = sorted({f"{g} (seed {s}: n={n})" for s, r in reports.items() for g, n in r.thin_groups().items()})
     if thin:
         lines += ["", f"Too thin to read (n < {THIN}): " + ", ".join(thin)]
+    not_run = sorted({f"{label} (seed {s}): {why}" for s, r in reports.items() for label, why in r.not_run.items()})
+    if not_run:
+        lines += ["", "Not run:", *(f"- {line}" for line in not_run)]
     lines += ["", "## Ensemble vs every single variant (MRR, percentage points, paired 95% interval per seed)", ""]
     lines += _ensemble_lines(runs)
     lines += ["", "## Seconds per phase", "", *_phase_lines(runs)]
