@@ -30,13 +30,15 @@ from __future__ import annotations
 
 import io
 from pathlib import Path
-from typing import Any, Literal
+from typing import TYPE_CHECKING, Any, Literal
 
-import torch
 from pydantic import Field
 
 from ssga_core.errors import CheckpointError, InputError, MissingWeightsError
 from ssga_core.stages import StageConfig
+
+if TYPE_CHECKING:  # torch loads when a network is built, not when a plugin registers (`ssga --help` stays fast)
+    import torch
 
 RANDOM_WEIGHTS = "random"
 """The ``weights`` value for random initialisation (tests only; every output says so)."""
@@ -80,6 +82,8 @@ class Learned:
 
 
 def resolve_device(choice: str, who: str = "stage") -> torch.device:
+    import torch
+
     if choice == "auto":
         return torch.device("cuda" if torch.cuda.is_available() else "cpu")
     if choice == "cuda" and not torch.cuda.is_available():
@@ -101,6 +105,8 @@ def find_weights(value: str, packaged: Path | None, who: str) -> Path:
 
 def load_checkpoint(path: Path, who: str, expected: str = "a torch checkpoint") -> Any:
     """``torch.load(path, weights_only=True)`` on the CPU; any failure is one :class:`CheckpointError` line."""
+    import torch
+
     try:
         return torch.load(path, map_location="cpu", weights_only=True)
     except FileNotFoundError:
@@ -112,6 +118,8 @@ def load_checkpoint(path: Path, who: str, expected: str = "a torch checkpoint") 
 
 def load_strict(module: torch.nn.Module, state: Any, who: str, path: Path | str, expected: str = "") -> None:
     """``module.load_state_dict(state, strict=True)``, with mismatches said in one line (first keys of each kind)."""
+    import torch
+
     what = expected or f"the {type(module).__name__} layout"
     if not isinstance(state, dict) or not all(isinstance(v, torch.Tensor) for v in state.values()):
         raise CheckpointError(f"{who}: config field 'weights': {path} holds no state dict of tensors; expected {what}")
@@ -130,6 +138,8 @@ def load_strict(module: torch.nn.Module, state: Any, who: str, path: Path | str,
 
 def checkpoint_bytes(obj: Any) -> bytes:
     """A checkpoint serialised in memory (write it with :func:`ssga_bench.io.atomic_write_bytes`)."""
+    import torch
+
     buffer = io.BytesIO()
     torch.save(obj, buffer)
     return buffer.getvalue()
