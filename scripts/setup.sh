@@ -21,7 +21,7 @@ packages=(ssga_core ssga_bench plugins/*/*/ examples/*/)
 stamp="$VENV/.ssga-installed"
 
 # Re-install only when a package's metadata (dependencies, entry points) or this script changed.
-if [ -f "$stamp" ] && [ -z "$(find scripts/setup.sh requirements-dev.txt "${packages[@]/%//pyproject.toml}" -newer "$stamp" 2>/dev/null)" ]; then
+if [ -f "$stamp" ] && [ -z "$(find scripts/setup.sh requirements-dev.txt requirements-nodeps.txt "${packages[@]/%//pyproject.toml}" -newer "$stamp" 2>/dev/null)" ]; then
     exit 0
 fi
 
@@ -51,5 +51,7 @@ pip -c "$constraints" hatchling editables
 editables=()
 for p in "${packages[@]}"; do editables+=(-e "$p"); done
 pip -c "$constraints" --no-build-isolation "${editables[@]}" -r requirements-dev.txt
+# Test-only reference code whose declared dependencies must not come along (see the file).
+pip -c "$constraints" --no-deps -r requirements-nodeps.txt
 touch "$stamp"
 echo "setup: done (torch $(torch_version))"

@@ -204,3 +204,47 @@ def test_relative_paths_in_stage_parameters_follow_the_config_file(tmp_path, reg
             '[stages]\ndescriptor = { name = "test-patch-colour" }\n[fuser]\nname = "test-fuser"\n'
         )
         assert load_experiment(path, with_mesh).workspace.config.mesh == expected
+
+
+def test_a_packaged_experiment_by_name_and_as_a_preset(tmp_path, ssga_installed_registry, monkeypatch):
+    from ssga_bench.config import config_path, packaged_presets
+
+    monkeypatch.chdir(tmp_path)
+    assert {"demo", "bench", "paper"} <= set(packaged_presets())
+    assert config_path("paper").name == "paper.toml" and config_path("paper").exists()
+    paper = load_experiment("paper", ssga_installed_registry)
+    assert [v.label for v in paper.variants] == ["CNN", "P (DS)", "P (SD)", "P-SL (PDS)", "P-SL (PSD)", "P-SL (SPD1)", "P-SL (SPD2)"]
+    # On one's own workspace: the preset's rows and training, this file's workspace and protocol.
+    (tmp_path / "mine.toml").write_text('preset = "paper"\noutput = "runs/mine"\n[workspace]\nname = "procedural"\nseed = 7\n[protocol]\ncells = 3\n')
+    mine = load_experiment("mine.toml", ssga_installed_registry)
+    assert [v.label for v in mine.variants] == [v.label for v in paper.variants]
+    assert mine.workspace.config.seed == 7 and mine.workspace.config.rooms == 8  # merged: same plugin
+    assert mine.config.protocol.cells == 3 and mine.config.protocol.test_per_class == 12
+    assert str(mine.config.output) == "runs/mine" and mine.config.training.synthetic_per_class == 4
+    # A section naming another plugin replaces the preset's (the procedural keys would not validate).
+    (tmp_path / "scan.glb").write_bytes(b"")
+    (tmp_path / "other.toml").write_text('preset = "demo"\n[workspace]\nname = "mesh"\npath = "scan.glb"\n')
+    other = load_experiment("other.toml", ssga_installed_registry)  # merged, the procedural keys would be errors
+    assert other.workspace.name == "mesh" and [v.label for v in other.variants][0] == "SIFT-SL (PDS)"
+    (tmp_path / "bad.toml").write_text('preset = "papers"\n')
+    with pytest.raises(ConfigError, match="'papers' is not a packaged experiment; known: bench, demo, paper"):
+        load_experiment("bad.toml", ssga_installed_registry)
+
+
+def test_the_configs_in_docs_config_md_validate(tmp_path, ssga_installed_registry, monkeypatch):
+    """Every ```toml block of docs/config.md marked `# docs-check: NAME` is a whole config that validates."""
+    import re
+    from pathlib import Path
+
+    text = (Path(__file__).parents[2] / "docs" / "config.md").read_text()
+    blocks = re.findall(r"```toml\n# docs-check: (\S+)\n(.*?)```", text, flags=re.S)
+    assert {name for name, _ in blocks} >= {"swap-all", "swap-one", "paper-on-my-scan"}
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "my-scan.glb").write_bytes(b"")
+    labels = {}
+    for name, body in blocks:
+        (tmp_path / f"{name}.toml").write_text(body)
+        labels[name] = [v.label for v in load_experiment(tmp_path / f"{name}.toml", ssga_installed_registry).variants]
+    assert labels["swap-all"][0] == "P-SL (PDS)" and all(label.startswith("P") for label in labels["swap-all"])
+    assert labels["swap-one"] == ["SIFT-SL (PDS)", "SIFT (DS)", "CNN"]
+    assert labels["paper-on-my-scan"][0] == "CNN"

@@ -42,7 +42,7 @@ FuserRef = REF_TYPES["fuser"]
 
 
 def packaged_config(name: str) -> Path:
-    """Path of a config shipped with ssga-bench (``demo.toml``, ``bench.toml``, ``defaults.toml``)."""
+    """Path of a config shipped with ssga-bench (``demo.toml``, ``bench.toml``, ``paper.toml``, ``defaults.toml``)."""
     return Path(str(resources.files("ssga_bench") / "configs" / name))
 
 
@@ -133,6 +133,11 @@ class EnsembleConfig(Strict):
 class ExperimentConfig(VariantsConfig):
     """A whole experiment: where views come from, the variants and their stages, training, fusion."""
 
+    preset: str | None = Field(
+        default=None,
+        description="Start from a packaged experiment (demo, bench, paper: `ssga config presets`); the file's own "
+        "keys override it, section by section (a section naming another plugin replaces the preset's).",
+    )
     workspace: WorkspaceRef | None = Field(default=None, description="The workspace source [default: defaults.toml's].")  # type: ignore[valid-type]
     protocol: ProtocolConfig = ProtocolConfig()
     training: TrainingConfig = TrainingConfig()
@@ -154,10 +159,40 @@ class Experiment:
     """The folder relative paths of the config were taken from (the config file's)."""
 
 
+def packaged_presets() -> list[str]:
+    """The packaged experiments a config can start from (``preset = "paper"``) or a command can name."""
+    return sorted(p.name.removesuffix(".toml") for p in resources.files("ssga_bench").joinpath("configs").iterdir() if p.name.endswith(".toml") and p.name != "defaults.toml")
+
+
+def config_path(given: str | Path) -> Path:
+    """``given`` if it is a file, else the packaged experiment it names (``paper`` or ``paper.toml``)."""
+    path = Path(given)
+    if path.exists() or path.parent != Path("."):
+        return path
+    name = path.name.removesuffix(".toml")
+    return packaged_config(f"{name}.toml") if name in packaged_presets() else path
+
+
+def with_preset(data: dict[str, Any], source: str) -> dict[str, Any]:
+    """``data`` over the packaged experiment its ``preset`` names: top-level keys replace the preset's; a
+    section (table) is merged key by key, unless it names another plugin (``name``), which replaces it."""
+    name = data.get("preset")
+    if name is None:
+        return data
+    if not isinstance(name, str) or name not in packaged_presets():
+        raise ConfigError(source, [f"preset: {name!r} is not a packaged experiment; known: {', '.join(packaged_presets())}"])
+    merged = read_toml(packaged_config(f"{name}.toml"))
+    for key, value in data.items():
+        base = merged.get(key)
+        same_plugin = isinstance(base, dict) and isinstance(value, dict) and value.get("name", base.get("name")) == base.get("name")
+        merged[key] = {**base, **value} if same_plugin else value  # type: ignore[dict-item]
+    return merged
+
+
 def load_experiment(path: str | Path, registry: Registry) -> Experiment:
-    """Read and validate an experiment config file; raise :class:`ConfigError` with every problem."""
-    path = Path(path)
-    return validate_experiment(read_toml(path), registry, source=str(path), base_dir=path.parent)
+    """Read and validate an experiment config file (or a packaged one by name); raise :class:`ConfigError` with every problem."""
+    path = config_path(path)
+    return validate_experiment(with_preset(read_toml(path), str(path)), registry, source=str(path), base_dir=path.parent)
 
 
 def _defaults() -> dict[str, Any]:

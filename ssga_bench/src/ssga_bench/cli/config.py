@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 import json
 from pathlib import Path
 from typing import Annotated
@@ -10,7 +11,7 @@ import typer
 
 from ssga_core.cli import command, current_registry
 from ssga_core.errors import SsgaError
-from ssga_bench.config import experiment_schema, load_experiment
+from ssga_bench.config import experiment_schema, load_experiment, packaged_config, packaged_presets
 
 config_app = typer.Typer(help="Validate experiment configs and print their schema.", no_args_is_help=True, rich_markup_mode=None)
 
@@ -37,7 +38,16 @@ def schema_cli() -> None:
     typer.echo(json.dumps(experiment_schema(current_registry()), indent=2))
 
 
+def presets_cli() -> None:
+    """List the packaged experiments: `ssga run NAME`, or `preset = "NAME"` in a config of your own."""
+    for name in packaged_presets():
+        lines = packaged_config(f"{name}.toml").read_text(encoding="utf-8").splitlines()
+        comment = " ".join(line.lstrip("#").strip() for line in itertools.takewhile(lambda line: line.startswith("#"), lines))
+        typer.echo(f"{name:<8} {comment.split('. ')[0].rstrip('.')}")
+
+
 def register(app: typer.Typer) -> None:
     command(config_app, name="validate")(validate_cli)
     command(config_app, name="schema")(schema_cli)
+    command(config_app, name="presets")(presets_cli)
     app.add_typer(config_app, name="config")

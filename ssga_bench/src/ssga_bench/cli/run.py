@@ -45,7 +45,7 @@ def _run(experiment: Experiment, output: Path | None) -> None:
 
 
 def run_cli(
-    config: Annotated[Path, typer.Argument(metavar="CONFIG", help="Experiment config (TOML).")],
+    config: Annotated[Path, typer.Argument(metavar="CONFIG", help="Experiment config (TOML), or a packaged one by name: demo, bench, paper.")],
     output: Annotated[Path | None, typer.Option(metavar="DIR", help="Output folder [default: the config's `output`].")] = None,
 ) -> None:
     """Run an experiment: build its workspace, train and score every variant, fuse, report."""
@@ -62,7 +62,7 @@ def demo_cli(
 
 
 def bench_cli(
-    config: Annotated[Path | None, typer.Argument(metavar="CONFIG", show_default=False, help="Experiment config [default: the packaged bench.toml].")] = None,
+    config: Annotated[Path | None, typer.Argument(metavar="CONFIG", show_default=False, help="Experiment config, or a packaged one by name (demo, bench, paper) [default: bench].")] = None,
     seeds: Annotated[str, typer.Option(metavar="N,N,...", help="Comma-separated seeds: one workspace, protocol draw and training seed each.")] = "0,1,2",
     test_per_class: Annotated[
         int | None, typer.Option(min=1, metavar="N", help="Override protocol.test_per_class (smaller for a quick run).")

@@ -1,0 +1,172 @@
+"""Patch-NetVLAD (PNV) local features, pooled into bag-of-words node features (paper §3.1.2).
+
+Each view is resized to ``image_size`` x ``image_size`` (256 by default, the paper's
+view size: 256 x 256 views pass unchanged), normalised with ImageNet's mean and std,
+and described by Patch-NetVLAD (:mod:`.model`): at 256 x 256, 144 patch descriptors
+of ``num_pcs`` = 512 dimensions (L2-normalised), one per 5 x 5-cell patch of the 16 x 16
+conv5_3 map, at its centre ``39.5 + 16 j`` px (the positions the ``dense-sift``
+descriptor uses). Everything after extraction is :class:`ssga_bench.BoWDescriptor`'s.
+
+Weights: the default is the light network trained on procedural homes that the
+benchmark never shows (``weights/pnv-light.pt``; how it was made: the README and
+``weights/pnv-light.json``); the presets ``mapillary`` and ``pittsburgh`` select the
+official VGG16 models, whose files the user places (``mapillary_WPCA512.pth.tar``...).
+"""
+
+from __future__ import annotations
+
+import threading
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+import torch
+from pydantic import Field, model_validator
+
+from ssga_core import Descriptor, InputError, LocalFeatures, View, hookimpl
+from ssga_bench import (
+    RANDOM_WEIGHTS,
+    BoWDescriptor,
+    BoWDescriptorConfig,
+    Learned,
+    LearnedConfig,
+    load_checkpoint,
+    load_strict,
+)
+from ssga_descriptor_pnv.model import LIGHT_WIDTHS, STRIDE, VGG16_WIDTHS, PatchNetVLAD, patch_grid, preprocess
+
+WEIGHTS_DIR = Path(__file__).parent / "weights"
+"""Where relative ``weights`` are looked up first (then the working directory)."""
+
+LIGHT_WEIGHTS = "pnv-light.pt"
+"""The packaged light network's file in :data:`WEIGHTS_DIR`."""
+
+NETWORKS = {"light": LIGHT_WIDTHS, "vgg16": VGG16_WIDTHS}
+
+RANDOM_CLUSTERS = 16
+"""K of a network on random weights (PNV's ``train.ini``); with a file, K is the file's."""
+
+RANDOM_SEED = 0
+"""Random weights are drawn from this seed: the same in every process (worker processes agree)."""
+
+
+class PnvConfig(BoWDescriptorConfig, LearnedConfig):
+    weights: str = Field(
+        default=LIGHT_WEIGHTS,
+        min_length=1,
+        description="Checkpoint (relative: the plugin's weights/ folder, then the working directory): the light network "
+        "trained here (default), an official file such as 'mapillary_WPCA512.pth.tar' (network = 'vgg16'), or 'random' (tests only).",
+    )
+    network: Literal["light", "vgg16"] = Field(
+        default="light",
+        description="Encoder: 'light' (VGG16 4x narrower, the packaged weights) or 'vgg16' (the official models); must match the file.",
+    )
+    num_pcs: int = Field(default=512, ge=1, le=65536, description="WPCA output dimension, the local features' length; must match the file.")
+    patch_size: int = Field(default=5, ge=1, le=16, description="Patch side in conv5_3 cells (16 px each); PNV's speed/storage setting: 5.")
+    stride: int = Field(default=1, ge=1, le=16, description="Cells between neighbouring patches.")
+    image_size: int | None = Field(
+        default=256,
+        ge=16,
+        le=4096,
+        description="Views are resized to image_size x image_size before description (PNV resizes every image to one size); "
+        "None: described at their own size. Positions are always in the view's pixels.",
+    )
+
+    @model_validator(mode="after")
+    def _a_patch_fits(self) -> PnvConfig:
+        if self.image_size is not None and self.image_size // STRIDE < self.patch_size:
+            raise ValueError(
+                f"image_size {self.image_size} gives a {self.image_size // STRIDE}-cell conv5_3 map, smaller than patch_size {self.patch_size}"
+            )
+        return self
+
+
+_NETWORKS: dict[tuple[Any, ...], PatchNetVLAD] = {}
+_LOCK = threading.Lock()
+
+
+class Pnv(Learned, BoWDescriptor):
+    """Patch-NetVLAD patch descriptors at their patch centres; node features are BoW histograms.
+
+    The network loads when the descriptor is made (a bad ``weights`` file is reported
+    before any work), once per process for all instances that use the same file.
+    """
+
+    name = "pnv"
+    abbrev = "P"  # the paper's tables: "P (DS)", "P-SL (PDS)"
+    Config = PnvConfig
+    presets = {
+        "light": {},
+        "mapillary": {"network": "vgg16", "weights": "mapillary_WPCA512.pth.tar"},
+        "pittsburgh": {"network": "vgg16", "weights": "pittsburgh_WPCA512.pth.tar"},
+    }
+
+    def __init__(self, config: PnvConfig | None = None) -> None:
+        super().__init__(config)
+        self.net = self._load()
+
+    @property
+    def who(self) -> str:
+        return f"{self.kind} {self.name!r}"
+
+    def _load(self) -> PatchNetVLAD:
+        cfg: PnvConfig = self.config  # type: ignore[assignment]
+        device = self.device
+        shape = (cfg.network, cfg.num_pcs, cfg.patch_size, cfg.stride, str(device))
+        if self.random_weights:
+            key: tuple[Any, ...] = (RANDOM_WEIGHTS, *shape)
+        else:
+            path = self.weights_file(WEIGHTS_DIR).resolve()
+            stat = path.stat()
+            key = (str(path), stat.st_mtime_ns, stat.st_size, *shape)
+        with _LOCK:
+            if key not in _NETWORKS:
+                _NETWORKS[key] = (self._random() if self.random_weights else self._from_file(path)).to(device).eval()
+            return _NETWORKS[key]
+
+    def _random(self) -> PatchNetVLAD:
+        cfg: PnvConfig = self.config  # type: ignore[assignment]
+        with torch.random.fork_rng(devices=[]):
+            torch.manual_seed(RANDOM_SEED)
+            return PatchNetVLAD(NETWORKS[cfg.network], RANDOM_CLUSTERS, cfg.num_pcs, cfg.patch_size, cfg.stride)
+
+    def _from_file(self, path: Path) -> PatchNetVLAD:
+        cfg: PnvConfig = self.config  # type: ignore[assignment]
+        expected = f"a Patch-NetVLAD checkpoint ({{'state_dict': encoder.*, pool.*, WPCA.*}}) of the {cfg.network!r} network with num_pcs = {cfg.num_pcs}"
+        checkpoint = load_checkpoint(path, self.who, expected)
+        state = checkpoint.get("state_dict", checkpoint) if isinstance(checkpoint, dict) else checkpoint
+        centroids = state.get("pool.centroids") if isinstance(state, dict) else None
+        clusters = int(centroids.shape[0]) if isinstance(centroids, torch.Tensor) and centroids.ndim == 2 else RANDOM_CLUSTERS
+        net = PatchNetVLAD(NETWORKS[cfg.network], clusters, cfg.num_pcs, cfg.patch_size, cfg.stride)
+        load_strict(net, state, self.who, path, expected)
+        return net
+
+    def __getstate__(self) -> dict[str, Any]:
+        state = self.__dict__.copy()
+        state.pop("net", None)  # worker processes load their own copy (from the file, or the same seed)
+        return state
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        self.__dict__.update(state)
+        self.net = self._load()
+
+    def _extract(self, view: View) -> LocalFeatures:
+        cfg: PnvConfig = self.config  # type: ignore[assignment]
+        h, w = view.camera.shape
+        size = cfg.image_size
+        side_h, side_w = (size, size) if size is not None else (h, w)
+        if min(side_h, side_w) // STRIDE < cfg.patch_size:
+            raise InputError(f"{self.who}: a {w}x{h} view is too small for {cfg.patch_size}-cell patches (needs {STRIDE * cfg.patch_size} px a side)")
+        x = preprocess(view.rgb, size).to(self.device)
+        with torch.inference_mode():
+            local, _ = self.net(x)
+        descriptors = local[0].float().cpu().numpy()
+        positions = patch_grid((side_h // STRIDE, side_w // STRIDE), cfg.patch_size, cfg.stride)
+        if (side_h, side_w) != (h, w):  # back to the view's pixels (pixel i covers [i - 0.5, i + 0.5])
+            positions = (positions + 0.5) * np.array([w / side_w, h / side_h], dtype=np.float32) - 0.5
+        return LocalFeatures(positions=positions.astype(np.float32), descriptors=np.ascontiguousarray(descriptors))
+
+
+@hookimpl
+def ssga_register_descriptors() -> list[type[Descriptor]]:
+    return [Pnv]

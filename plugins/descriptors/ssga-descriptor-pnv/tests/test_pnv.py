@@ -1,0 +1,181 @@
+"""The pnv descriptor: registration, contract, shapes and positions, loading errors, caveats, packaged weights."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import pickle
+
+import numpy as np
+import pytest
+import torch
+from ssga_descriptor_pnv.model import LIGHT_WIDTHS, VGG16_WIDTHS, PatchNetVLAD
+from ssga_descriptor_pnv.plugin import LIGHT_WEIGHTS, WEIGHTS_DIR, Pnv, PnvConfig
+
+from ssga_bench import BoWConfig, checkpoint_bytes, validate_experiment
+from ssga_core import Camera, CheckpointError, ConfigError, InputError, Pose, View, resolve_stage
+from ssga_core.testing import check_descriptor, check_descriptor_in_all_orders, make_view
+
+RANDOM = PnvConfig(weights="random", device="cpu")
+SMALL = PnvConfig(weights="random", device="cpu", image_size=128, bow=BoWConfig(k=16))
+"""Views described at 128 x 128: 16 features each (a quarter of the cost), for the slow contract runs."""
+
+
+def _view(width: int = 256, height: int = 256, seed: int = 0) -> View:
+    rgb = np.random.default_rng(seed).integers(0, 256, (height, width, 3), dtype=np.uint8)
+    return View(rgb=rgb, pose=Pose(0.0, 0.0, 0.0), camera=Camera(width=width, height=height))
+
+
+def _checkpoint(tmp_path, net: torch.nn.Module, name: str = "w.pt") -> str:
+    path = tmp_path / name
+    path.write_bytes(checkpoint_bytes({"num_pcs": 512, "state_dict": net.state_dict()}))
+    return str(path)
+
+
+def test_is_installed_and_registered(ssga_installed_registry):
+    entry = ssga_installed_registry.entry("descriptor", "pnv")
+    assert entry.cls is Pnv
+    assert entry.plugin.distribution == "ssga-descriptor-pnv"
+
+
+def test_meets_the_descriptor_contract():
+    check_descriptor(Pnv(RANDOM))
+
+
+def test_runs_in_every_order():
+    check_descriptor_in_all_orders(Pnv(SMALL))
+
+
+def test_144_unit_features_of_512_dims_at_the_patch_centres():
+    local = Pnv(RANDOM).extract(make_view())
+    assert local.descriptors.shape == (144, 512) and local.descriptors.dtype == np.float32
+    np.testing.assert_allclose(np.linalg.norm(local.descriptors, axis=1), 1.0, rtol=1e-5)
+    centres = 39.5 + 16 * np.arange(12)  # 5 x 5-cell patches of the 16 x 16 conv5_3 map, 16 px apart
+    np.testing.assert_allclose(local.positions[:12, 0], centres)  # row by row: u varies first
+    np.testing.assert_allclose(local.positions[::12, 1], centres)
+
+
+def test_other_sizes_are_resized_to_256_and_positions_scaled_back():
+    d = Pnv(RANDOM)
+    view = _view(320, 192)
+    local = d.extract(view)
+    assert local.descriptors.shape == (144, 512)
+    np.testing.assert_allclose(local.positions[:12, 0], (40 + 16 * np.arange(12)) * 320 / 256 - 0.5, atol=1e-4)
+    np.testing.assert_allclose(local.positions[::12, 1], (40 + 16 * np.arange(12)) * 192 / 256 - 0.5, atol=1e-4)
+    assert view.camera.contains(local.positions).all()
+    native = Pnv(PnvConfig(weights="random", device="cpu", image_size=None)).extract(view)
+    assert len(native) == (320 // 16 - 4) * (192 // 16 - 4)
+    with pytest.raises(InputError, match="too small"):
+        Pnv(PnvConfig(weights="random", device="cpu", image_size=None)).extract(_view(64, 64))
+    with pytest.raises(ValueError, match="smaller than patch_size"):
+        PnvConfig(image_size=64)
+
+
+def test_the_same_view_gives_the_same_features_and_another_view_others():
+    d = Pnv(RANDOM)
+    a, b = d.extract(make_view(seed=1)).descriptors, d.extract(make_view(seed=1)).descriptors
+    np.testing.assert_array_equal(a, b)
+    assert np.abs(a - d.extract(make_view(seed=2)).descriptors).max() > 0.02
+
+
+def test_random_weights_are_the_same_in_every_instance_and_after_pickling():
+    view = make_view()
+    a = Pnv(RANDOM).extract(view).descriptors
+    copy = pickle.loads(pickle.dumps(Pnv(RANDOM)))
+    np.testing.assert_array_equal(copy.extract(view).descriptors, a)
+
+
+def test_random_weights_caveat_reaches_the_variant_label(ssga_installed_registry):
+    def label(descriptor: dict) -> str:
+        config = {"variants": ["PD"], "stages": {"parser": {"name": "slico"}, "descriptor": {"name": "pnv", **descriptor}}}
+        return validate_experiment(config, ssga_installed_registry).variants[0].label
+
+    assert label({"weights": "random"}) == "P-SL (PD) [random weights]"
+    assert label({}) == "P-SL (PD)"
+
+
+def test_a_missing_file_is_one_line_naming_the_field_and_the_file(tmp_path):
+    with pytest.raises(CheckpointError) as err:
+        Pnv(PnvConfig(weights=str(tmp_path / "absent.pth.tar")))
+    message = str(err.value)
+    assert "\n" not in message and "'weights'" in message and "absent.pth.tar" in message and "descriptor 'pnv'" in message
+
+
+def test_a_corrupt_file_is_one_line(tmp_path):
+    bad = tmp_path / "corrupt.pth.tar"
+    bad.write_bytes(b"\x80\x02 not a checkpoint")
+    with pytest.raises(CheckpointError, match="corrupt.pth.tar is not a readable checkpoint") as err:
+        Pnv(PnvConfig(weights=str(bad)))
+    assert "\n" not in str(err.value) and "'weights'" in str(err.value)
+
+
+def test_mismatched_keys_and_shapes_are_one_line(tmp_path):
+    vgg = PatchNetVLAD(VGG16_WIDTHS, 16, 512)
+    with pytest.raises(CheckpointError) as err:  # a VGG16 file read as the light network
+        Pnv(PnvConfig(weights=_checkpoint(tmp_path, vgg, "mapillary_WPCA512.pth.tar"), network="light"))
+    message = str(err.value)
+    assert "\n" not in message and "'weights'" in message and "mapillary_WPCA512.pth.tar" in message
+    assert "wrong shape: encoder.0.weight (64, 3, 3, 3) (expected (16, 3, 3, 3))" in message
+    state = PatchNetVLAD(LIGHT_WIDTHS, 16, 512).state_dict()
+    del state["WPCA.0.bias"]
+    state["pool.conv.bias"] = torch.zeros(16)  # a VLAD v2 file: assignment bias
+    path = tmp_path / "v2.pt"
+    path.write_bytes(checkpoint_bytes({"state_dict": state}))
+    with pytest.raises(CheckpointError, match=r"1 missing: WPCA.0.bias; 1 unexpected: pool.conv.bias"):
+        Pnv(PnvConfig(weights=str(path)))
+    light = PatchNetVLAD(LIGHT_WIDTHS, 16, 512)
+    with pytest.raises(CheckpointError, match=r"WPCA.0.weight \(512, 2048, 1, 1\) \(expected \(128, 2048, 1, 1\)\)"):
+        Pnv(PnvConfig(weights=_checkpoint(tmp_path, light), num_pcs=128))
+
+
+def test_clusters_are_read_from_the_file(tmp_path):
+    net = PatchNetVLAD(LIGHT_WIDTHS, clusters=8, num_pcs=512)
+    d = Pnv(PnvConfig(weights=_checkpoint(tmp_path, net, "k8.pt"), device="cpu"))
+    assert d.net.pool.clusters == 8 and d.net.WPCA[0].in_channels == 8 * 128
+    assert Pnv.caveat(d.config) == ""
+
+
+def test_presets_name_the_official_files(ssga_installed_registry, tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    stage = resolve_stage("descriptor", {"name": "pnv", "preset": "pittsburgh"}, ssga_installed_registry)
+    assert stage.config.network == "vgg16" and stage.config.weights == "pittsburgh_WPCA512.pth.tar"
+    with pytest.raises(CheckpointError, match="'weights' = 'pittsburgh_WPCA512.pth.tar': no such file"):
+        stage.create()
+    assert Pnv.presets["mapillary"]["weights"] == "mapillary_WPCA512.pth.tar"
+    with pytest.raises(ConfigError, match="no preset 'tokyo'"):
+        resolve_stage("descriptor", {"name": "pnv", "preset": "tokyo"}, ssga_installed_registry)
+
+
+def test_the_packaged_weights_load_and_differ_from_random_ones():
+    trained = Pnv(PnvConfig(device="cpu"))
+    assert trained.config.weights == LIGHT_WEIGHTS and not trained.random_weights
+    view = make_view()
+    a, b = trained.extract(view).descriptors, Pnv(RANDOM).extract(view).descriptors
+    assert a.shape == b.shape == (144, 512)
+    np.testing.assert_allclose(np.linalg.norm(a, axis=1), 1.0, rtol=1e-5)
+    assert np.abs(a - b).max() > 0.1
+
+
+def test_the_packaged_weights_carry_their_provenance():
+    data = (WEIGHTS_DIR / LIGHT_WEIGHTS).read_bytes()
+    sidecar = json.loads((WEIGHTS_DIR / "pnv-light.json").read_text())
+    assert sidecar["sha256"] == hashlib.sha256(data).hexdigest() and len(data) <= 20_000_000
+    checkpoint = torch.load(WEIGHTS_DIR / LIGHT_WEIGHTS, weights_only=True)
+    provenance = checkpoint["provenance"]
+    assert provenance["command"].startswith("python -m ssga_descriptor_pnv.train")
+    assert min(provenance["train_seeds"]) >= 1000 and not set(provenance["train_seeds"]) & set(provenance["heldout_seeds"])
+    heldout = provenance["figures"]["heldout"]
+    assert heldout["trained"]["netvlad"]["recall@1"] > heldout["init"]["netvlad"]["recall@1"]
+
+
+def test_runs_on_the_cpu_and_on_cuda_alike():
+    view = make_view()
+    cpu = Pnv(PnvConfig(device="cpu"))
+    assert next(cpu.net.parameters()).device.type == "cpu"
+    a = cpu.extract(view).descriptors
+    if not torch.cuda.is_available():
+        with pytest.raises(InputError, match="no CUDA device"):
+            Pnv(PnvConfig(device="cuda"))
+        return
+    b = Pnv(PnvConfig(device="cuda")).extract(view).descriptors
+    np.testing.assert_allclose(a, b, atol=1e-4)
