@@ -176,9 +176,15 @@ def test_bench_summary_over_seeds():
         rng, truth, groups = _data(seed)
         good, noise = np.eye(10)[truth] + rng.random((120, 10)), rng.random((120, 10))
         variants, best = {"good": good, "noise": noise}, ["good", "noise"][seed]
-        report = Report.build("ws", variants, truth, groups=groups, num_classes=10, ensemble=("E", good + noise), best_single=best)
+        nn = f"nearest neighbour ({best})"
+        report = Report.build(
+            "ws", variants, truth, groups=groups, num_classes=10, ensemble=("E", good + noise), best_single=best,
+            references={nn: good}, series={nn: "nearest neighbour (best single)"},
+        )  # fmt: skip
         runs[seed] = SeedRun(report, {"train": 1.0 + seed, "describe": 4.0}, 10.0)
     md = bench_summary(runs)
+    # A reference whose label names this seed's choice is one row across seeds, under its series.
+    assert "| nearest neighbour (best single) |" in md and "nearest neighbour (good)" not in md
     mean = mean_interval(np.array([runs[s].report.table["good"]["L1"]["top1"] for s in (0, 1)]))
     assert f"| good | {mean.text()} |" in md and "t-interval across seeds" in md
     assert "| best single (validation) |" in md  # one row, whichever variant each seed chose

@@ -21,6 +21,7 @@ choosing it here, on the test views, would flatter it.
 from __future__ import annotations
 
 import csv
+import dataclasses
 import io
 import math
 from collections.abc import Mapping, Sequence
@@ -205,10 +206,14 @@ class Row:
     flags: tuple[str, ...] = ()
     source: str | None = None
     """Best single: the variant it repeats."""
+    series: str | None = None
+    """The row's name across seeds where its label names what this seed chose (``nearest neighbour (SIFT (SD))``)."""
 
     @property
     def key(self) -> str:
-        """The row's name across seeds: the best single variant may differ from seed to seed."""
+        """The row's name across seeds: the best single variant, the chosen members... may differ from seed to seed."""
+        if self.series is not None:
+            return self.series
         return self.label.partition(": ")[0] if self.kind == "best single" else self.label
 
 
@@ -242,6 +247,7 @@ class Report:
         references: Mapping[str, np.ndarray] | None = None,
         flags: Mapping[str, str] | None = None,
         not_run: Mapping[str, str] | None = None,
+        series: Mapping[str, str] | None = None,
     ) -> Report:
         """Score every row.
 
@@ -258,6 +264,8 @@ class Report:
                 every scored row whose all-views MRR interval holds the random MRR.
             not_run: variants without scores (their weights are missing) and why; each
                 is listed in the tables as not run.
+            series: for reference rows whose label depends on what was chosen on this
+                seed's data, the name that joins them across seeds.
         """
         references, flags = dict(references or {}), dict(flags or {})
         truth = np.asarray(truth)
@@ -293,7 +301,7 @@ class Report:
         rows = [row(v, "variant") for v in variant_scores] + [row(ens_label, "ensemble")]
         if best_single is not None:
             rows.append(row(f"best single ({best_single_basis}): {best_single}", "best single", best_single))
-        rows += [row(r, "reference") for r in references]
+        rows += [dataclasses.replace(row(r, "reference"), series=(series or {}).get(r)) for r in references]
         rows.append(Row("random", "random", {g: {m: exact(v, counts[g]) for m, v in chance.items()} for g in masks}))
         return cls(title, {r.label: r for r in rows}, counts, num_classes, rank, masks, dict(not_run or {}))
 

@@ -420,6 +420,7 @@ def run_experiment(
             references[selected_label] = fused_chosen
     reference_variant = best_single or labels[0]
     references[f"nearest neighbour ({reference_variant})"] = results[reference_variant].nearest
+    series = {selected_label: f"Ensemble ({fuser.tag()}) chosen on validation", f"nearest neighbour ({reference_variant})": "nearest neighbour (best single)"}
 
     oracles = [rv for rv in experiment.variants if str(rv.variant) in config.ensemble.oracle and rv.variant.synthesizes and rv.label in results]
     workspace = _renderable(experiment) if oracles else None
@@ -447,6 +448,7 @@ def run_experiment(
             references=references,
             flags=flags,
             not_run=not_run,
+            series={label: name for label, name in series.items() if label in references},
         )
     with timings.phase("report"):
         atomic_write_bytes(out / "report.md", report.markdown().encode())
