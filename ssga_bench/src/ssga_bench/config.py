@@ -225,7 +225,7 @@ def validate_experiment(data: dict[str, Any], registry: Registry, *, source: str
         else packaged.stage(FuserRef.model_validate(defaults["fuser"]), "fuser", ("defaults.toml", "fuser"))
     )
     resolver.problems.extend(packaged.problems)
-    variants = resolver.variants(config, available=workspace.cls.produces if workspace else None)
+    variants = resolver.variants(config, available=workspace.cls.carries(workspace.config) if workspace else None)
     resolver.raise_problems(source)
     assert workspace is not None and fuser is not None
     return Experiment(config=config, workspace=workspace, variants=variants, fuser=fuser, source=source, base_dir=base_dir)

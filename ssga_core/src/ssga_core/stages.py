@@ -279,6 +279,13 @@ class WorkspaceSource(Stage):
     kind = "workspace"
     produces = frozenset({Data.RGB})
 
+    @classmethod
+    def carries(cls, config: StageConfig) -> frozenset[Data]:
+        """What the views of the workspace ``config`` describes carry: ``produces`` unless
+        the source can tell more from its files (captures without depth), so that a
+        variant whose stages need what is missing is refused before anything runs."""
+        return cls.produces
+
     @abstractmethod
     def open(self) -> Any:
         """Open the workspace this source's config describes.

@@ -128,3 +128,21 @@ def test_a_relative_folder_follows_the_config_file_in_every_command(tmp_path, mo
     built = json.loads(next((elsewhere / "runs" / "workspaces").glob("*/dataset.json")).read_text())
     assert built["source"]["path"] == str(tmp_path / "cfgdir" / "caps")
     assert (elsewhere / "out" / "report.md").exists()  # `output` is relative to where ssga runs
+
+
+def test_captures_without_depth_refuse_a_depth_warp_before_anything_runs(tmp_path, ssga_installed_registry):
+    """RGB-only captures: `config validate` names the variant and what it lacks; RGB-only variants pass."""
+    from ssga_core import ConfigError, Data
+    from ssga_bench import validate_experiment
+
+    rows = make_folder(tmp_path / "caps", n=40)
+    assert FolderWorkspaceSource.carries(FolderConfig(path=tmp_path / "caps")) == {Data.RGB, Data.DEPTH}
+    (tmp_path / "caps" / "captures.jsonl").write_text("".join(json.dumps({k: v for k, v in r.items() if k != "depth"}) + "\n" for r in rows))
+    assert FolderWorkspaceSource.carries(FolderConfig(path=tmp_path / "caps")) == {Data.RGB}
+    config = {
+        "workspace": {"name": "folder", "path": str(tmp_path / "caps")},
+        "stages": {"parser": {"name": "slico"}, "descriptor": {"name": "dense-sift"}, "synthesizer": {"name": "depth-warp"}},
+    }
+    with pytest.raises(ConfigError, match=r"variants\[0\].*depth"):
+        validate_experiment({**config, "variants": ["SD", "PD"]}, ssga_installed_registry)
+    assert [v.label for v in validate_experiment({**config, "variants": ["PD", "D"]}, ssga_installed_registry).variants] == ["SIFT-SL (PD)", "SIFT (D)"]

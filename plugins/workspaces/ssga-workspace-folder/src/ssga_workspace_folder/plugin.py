@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 from pydantic import Field
 
-from ssga_core import Camera, Data, InputError, Pose, StageConfig, View, WorkspaceSource, hookimpl
+from ssga_core import Camera, Data, InputError, Pose, SsgaError, StageConfig, View, WorkspaceSource, hookimpl
 from ssga_bench import depth_from_png16, ids_from_png16, read_json, read_jsonl, read_png
 from ssga_bench import FloorPlan
 
@@ -100,7 +100,19 @@ class FolderWorkspaceSource(WorkspaceSource):
 
     name = "folder"
     Config = FolderConfig
-    produces = frozenset({Data.RGB, Data.DEPTH})
+    produces = frozenset({Data.RGB, Data.DEPTH, Data.SEMANTIC})
+
+    @classmethod
+    def carries(cls, config: StageConfig) -> frozenset[Data]:
+        """RGB, and depth or semantic ids where every capture names such an image (read from the captures file)."""
+        assert isinstance(config, FolderConfig)
+        try:
+            rows = read_jsonl(config.path / config.captures)
+        except SsgaError:
+            return cls.produces  # opening the workspace reports the file
+        rows = [row for row in rows if isinstance(row, dict)]
+        extra = {data for data, key in ((Data.DEPTH, "depth"), (Data.SEMANTIC, "semantic")) if rows and all(row.get(key) for row in rows)}
+        return frozenset({Data.RGB, *extra})
 
     def open(self) -> FolderWorkspace:
         root = self.config.path
