@@ -17,7 +17,7 @@ def synthesize_cli(
     synthesizer: Annotated[str, typer.Option(metavar="NAME", help="Synthesizer plugin (`ssga plugins` lists them).")],
     move: Annotated[str, typer.Option(metavar="FORWARD,LEFT,YAW_DEG", help="The target camera: metres ahead, metres to the left, degrees turned left.")],
     out: Annotated[Path, typer.Option(metavar="DIR", help="Folder for synthetic.png, depth.png, holes.png and side-by-side.png.")],
-    depth: Annotated[Path | None, typer.Option(metavar="FILE", help="The image's metric depth, a 16-bit PNG of millimetres or a .npy of metres, for synthesizers that need it.")] = None,
+    depth: Annotated[Path | None, typer.Option(metavar="FILE", help="The image's metric depth (a 16-bit PNG of millimetres, or a NumPy file of metres), for synthesizers that need it.")] = None,
     hfov: Annotated[float, typer.Option(min=1.0, max=179.0, metavar="DEGREES", help="Horizontal field of view of the camera.")] = 90.0,
     option: Annotated[list[str] | None, typer.Option("--option", "-o", metavar="KEY=VALUE", help="A parameter of the synthesizer (or preset=NAME); repeatable.")] = None,
 ) -> None:
