@@ -47,7 +47,6 @@ hookimpl = pluggy.HookimplMarker("ssga")
 __all__ = [
     "Camera",
     "CheckpointError",
-    "MissingWeightsError",
     "ConfigError",
     "Data",
     "Descriptor",
@@ -56,6 +55,7 @@ __all__ = [
     "KINDS",
     "LocalDescriptor",
     "LocalFeatures",
+    "MissingWeightsError",
     "Parser",
     "PluginError",
     "Pose",
