@@ -1,0 +1,271 @@
+"""How close are synthesized views to true renders? Held-out homes, synsin against depth-warp on true depth.
+
+Pairs: ``pairs_per_home`` orbit pairs (:mod:`.pairs`) in each held-out home (3100, 3101:
+no training run and no benchmark uses them). Each pair's source view is synthesized at
+the target pose and compared with the true render there, as the repository's
+``scripts/synthesis_quality.py`` measures (the same masks and scores, reimplemented
+here because plugins do not import scripts):
+
+* ``seen``: target pixels whose true surface the source saw (the pixel, moved into the
+  source camera with the true target depth, lands on the source's true depth there
+  within 2%, read at the nearest pixel or bilinearly as inverse depth). A seen pixel the
+  synthesis left empty counts (as black). The content a synthesis can hope to get right.
+* ``image``: every pixel (what no source saw must be invented: a learned synthesizer
+  paints it, depth-warp leaves wide holes black).
+
+Scores pool all pairs' masked pixels: PSNR of the mean squared error, and SSIM
+(scikit-image, Gaussian window sigma 1.5, per channel) averaged over the masked pixels,
+the synthetic image taking the true pixels outside the mask. Synthesizers:
+
+* ``synsin``: what the plugin renders from RGB alone (its predicted depth);
+* ``depth-warp (true depth)``: the depth-warp plugin with the true source depth, the
+  geometric upper reference;
+* ``synsin (true depth)``: the same network, its depth replaced by the true one, which
+  separates the depth predictor's errors from the splatting and refinement's;
+* ``source as is``: the unmoved source image (a floor any synthesizer must beat).
+
+Also the depth predictor's error on the source views (median absolute relative error,
+and the share within 10%).
+
+    python -m ssga_synthesizer_synsin.evaluate [--weights FILE] [--pairs-per-home 40] [--json out.json]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ssga_synthesizer_synsin.pairs import HELDOUT_SEEDS, Pairs, render_pairs
+
+TOLERANCE = 0.02
+
+
+@dataclass(frozen=True)
+class HeldOut:
+    seeds: tuple[int, ...] = HELDOUT_SEEDS
+    pairs_per_home: int = 40
+    distance_m: tuple[float, float] = (0.6, 1.4)
+    max_turn_deg: float = 60.0
+
+
+def render_heldout(spec: HeldOut = HeldOut(), progress: Callable[[str], None] | None = None) -> Pairs:
+    return Pairs.concat(
+        [
+            render_pairs(s, spec.pairs_per_home, distance_m=spec.distance_m, max_turn_deg=spec.max_turn_deg, progress=progress)
+            for s in spec.seeds
+        ]
+    )
+
+
+def _move(depth: np.ndarray, view, to) -> tuple[np.ndarray, np.ndarray]:
+    T = to.relative_to(view.pose)
+    points = view.camera.unproject(depth) @ T[:3, :3].T.astype(np.float32) + T[:3, 3].astype(np.float32)
+    uv, z = view.camera.project(points)
+    known = depth > 0
+    return np.where(known[..., None], uv, np.nan), np.where(known, z, np.nan)
+
+
+def _on_surface(uv: np.ndarray, z: np.ndarray, depth: np.ndarray) -> np.ndarray:
+    import cv2
+
+    h, w = depth.shape
+    with np.errstate(invalid="ignore"):
+        inside = (uv[..., 0] > -0.5) & (uv[..., 0] < w - 0.5) & (uv[..., 1] > -0.5) & (uv[..., 1] < h - 0.5) & (z > 0)
+    u = np.where(inside, uv[..., 0], 0).astype(np.float32)
+    v = np.where(inside, uv[..., 1], 0).astype(np.float32)
+    nearest = depth[np.rint(v).astype(int), np.rint(u).astype(int)]
+    with np.errstate(divide="ignore"):
+        inverse = np.where(depth > 0, 1.0 / depth, 0.0).astype(np.float32)
+    bilinear = cv2.remap(inverse, u, v, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return inside & ((np.abs(nearest - z) <= TOLERANCE * z) | (np.abs(1.0 / bilinear - z) <= TOLERANCE * z))
+
+
+def seen_mask(truth, source) -> np.ndarray:
+    """``(H, W)`` bool: target pixels of ``truth`` whose true surface ``source`` saw (both views carry true depth)."""
+    return _on_surface(*_move(truth.depth, truth, source.pose), source.depth)
+
+
+@dataclass
+class Tally:
+    """PSNR and SSIM of one mask, pooled over pairs."""
+
+    pixels: int = 0
+    squared_error: float = 0.0
+    ssim_sum: float = 0.0
+
+    def add(self, synthetic: np.ndarray, truth: np.ndarray, mask: np.ndarray) -> None:
+        from skimage.metrics import structural_similarity
+
+        if not mask.any():
+            return
+        diff = synthetic[mask].astype(np.float64) - truth[mask]
+        self.squared_error += float((diff**2).mean(axis=-1).sum())
+        pasted = np.where(mask[..., None], synthetic, truth)
+        _, smap = structural_similarity(
+            pasted,
+            truth,
+            channel_axis=-1,
+            data_range=255,
+            gaussian_weights=True,
+            sigma=1.5,
+            use_sample_covariance=False,
+            full=True,
+        )
+        self.ssim_sum += float(smap.mean(axis=-1)[mask].sum())
+        self.pixels += int(mask.sum())
+
+    @property
+    def psnr(self) -> float:
+        return (
+            float(10 * np.log10(255.0**2 * self.pixels / self.squared_error))
+            if self.pixels and self.squared_error
+            else float("nan")
+        )
+
+    @property
+    def ssim(self) -> float:
+        return self.ssim_sum / self.pixels if self.pixels else float("nan")
+
+
+@dataclass
+class Scores:
+    seen: Tally = field(default_factory=Tally)
+    image: Tally = field(default_factory=Tally)
+    pairs: int = 0
+    seconds: float = 0.0
+
+    def row(self) -> dict[str, float]:
+        return {
+            "pairs": self.pairs,
+            "seen_psnr": round(self.seen.psnr, 2),
+            "seen_ssim": round(self.seen.ssim, 4),
+            "image_psnr": round(self.image.psnr, 2),
+            "image_ssim": round(self.image.ssim, 4),
+            "ms_per_view": round(1000 * self.seconds / max(self.pairs, 1), 1),
+        }
+
+
+def views(pairs: Pairs, i: int):
+    """The source and target :class:`~ssga_core.View` of pair ``i`` (with true depth)."""
+    from ssga_core import View
+
+    return tuple(View(rgb=pairs.rgb[i, k], pose=pairs.pose(i, k), depth=pairs.depth[i, k].astype(np.float32)) for k in (0, 1))
+
+
+def measure(renderers: dict[str, Callable[[Any, Any], np.ndarray]], pairs: Pairs) -> dict[str, dict[str, float]]:
+    """Scores of each renderer ``(source view, target pose) -> (H, W, 3) uint8`` on every pair."""
+    scores = {name: Scores() for name in renderers}
+    for i in range(len(pairs)):
+        source, truth = views(pairs, i)
+        seen = seen_mask(truth, source)
+        everything = np.ones_like(seen)
+        for name, render in renderers.items():
+            t = time.perf_counter()
+            rgb = render(source, truth.pose)
+            scores[name].seconds += time.perf_counter() - t
+            scores[name].seen.add(rgb, truth.rgb, seen)
+            scores[name].image.add(rgb, truth.rgb, everything)
+            scores[name].pairs += 1
+    return {name: s.row() for name, s in scores.items()}
+
+
+def depth_errors(predict: Callable[[Any], np.ndarray], pairs: Pairs) -> dict[str, float]:
+    """Median absolute relative error of predicted source depths, and the share of pixels within 10%."""
+    errors = []
+    for i in range(len(pairs)):
+        source, _ = views(pairs, i)
+        known = source.depth > 0
+        pred = predict(source)
+        errors.append(np.abs(pred[known] - source.depth[known]) / source.depth[known])
+    e = np.concatenate(errors)
+    return {"median_abs_rel": round(float(np.median(e)), 4), "within_10pct": round(float((e < 0.1).mean()), 4)}
+
+
+def synsin_renderers(synthesizer) -> dict[str, Callable[[Any, Any], np.ndarray]]:
+    """``synsin`` (predicted depth) and ``synsin (true depth)`` renderers of a :class:`SynSinSynthesizer`."""
+    import torch
+
+    from ssga_synthesizer_synsin.model import normalise, render, to_uint8
+
+    net = synthesizer.net
+
+    def own(source, target):
+        return synthesizer.synthesize(source, target).view.rgb
+
+    def true_depth(source, target):
+        T = torch.from_numpy(target.relative_to(source.pose)).float()[None]
+        K = torch.from_numpy(source.camera.K).float()
+        with torch.inference_mode():
+            out, _, _ = render(net, normalise(source.rgb), K, T, depth=torch.from_numpy(source.depth)[None, None].float())
+        return to_uint8(out)[0]
+
+    return {"synsin": own, "synsin (true depth)": true_depth}
+
+
+def reference_renderers() -> dict[str, Callable[[Any, Any], np.ndarray]]:
+    """``depth-warp (true depth)`` (the installed plugin, its defaults) and ``source as is``."""
+    from ssga_core.cli import current_registry
+
+    from ssga_core import resolve_stage
+
+    warp = resolve_stage("synthesizer", {"name": "depth-warp"}, current_registry()).create()
+    return {
+        "depth-warp (true depth)": lambda source, target: warp.synthesize(source, target).view.rgb,
+        "source as is": lambda source, target: source.rgb,
+    }
+
+
+def evaluate(synthesizer, pairs: Pairs, *, references: bool = True) -> dict[str, Any]:
+    """Every score of the module docstring for one synthesizer (a :class:`SynSinSynthesizer`)."""
+    renderers = synsin_renderers(synthesizer)
+    if references:
+        renderers.update(reference_renderers())
+    return {"scores": measure(renderers, pairs), "depth": depth_errors(synthesizer.predict_depth, pairs), "pairs": len(pairs)}
+
+
+def table(rows: dict[str, dict[str, float]]) -> str:
+    lines = ["| | seen PSNR | seen SSIM | image PSNR | image SSIM | ms/view |", "|---|---|---|---|---|---|"]
+    for name, r in rows.items():
+        lines.append(
+            f"| {name} | {r['seen_psnr']:.2f} | {r['seen_ssim']:.3f} | {r['image_psnr']:.2f} | {r['image_ssim']:.3f} | {r['ms_per_view']:.0f} |"
+        )
+    return "\n".join(lines)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    import torch
+
+    from ssga_synthesizer_synsin.plugin import SynSinConfig, SynSinSynthesizer
+
+    parser = argparse.ArgumentParser(prog="python -m ssga_synthesizer_synsin.evaluate", description=__doc__.split("\n\n")[0])
+    parser.add_argument(
+        "--weights", action="append", default=None, help="checkpoint(s) to score (default: the packaged weights); repeatable"
+    )
+    parser.add_argument("--pairs-per-home", type=int, default=HeldOut.pairs_per_home)
+    parser.add_argument("--threads", type=int, default=1)
+    parser.add_argument("--json", type=Path, default=None)
+    args = parser.parse_args(argv)
+    torch.set_num_threads(args.threads)
+    pairs = render_heldout(HeldOut(pairs_per_home=args.pairs_per_home))
+    results = {}
+    for i, weights in enumerate(args.weights or ["synsin-light.pt"]):
+        s = SynSinSynthesizer(SynSinConfig(weights=weights, device="cpu"))
+        results[weights] = evaluate(s, pairs, references=i == 0)
+        print(f"{weights}: {len(pairs)} held-out pairs; depth {results[weights]['depth']}")
+        print(table(results[weights]["scores"]))
+    if args.json:
+        args.json.write_text(json.dumps(results, indent=2))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

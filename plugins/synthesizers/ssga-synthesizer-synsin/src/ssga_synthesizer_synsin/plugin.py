@@ -1,0 +1,248 @@
+"""The ``synsin`` synthesizer: SynSin-style learned view synthesis from RGB alone (paper §3.1.3, Fig. 3).
+
+For each source view the network predicts a metric depth and per-pixel features
+(:mod:`.model`); the core's geometry (``Camera.unproject``, ``Pose.relative_to``,
+``Camera.project``) moves every pixel to the target pose, which gives the point map;
+the points are splatted, z-buffered and alpha-composited with a soft radius
+(:mod:`.splat`), and the refinement network turns the splatted features into the
+target image. Several views render jointly: their points share one z-buffer and one
+refinement pass.
+
+Weights: the light network trained here on procedural homes the benchmark never shows
+(``weights/synsin-light.pt``; how it was made: the README and
+``weights/synsin-light.json``), or SynSin's released MP3D model (preset ``mp3d``:
+``network = "synsin"``, ``weights = "mp3d/synsin.pth"``, which the user downloads).
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import threading
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+import torch
+from pydantic import Field
+
+from ssga_bench import RANDOM_WEIGHTS, Learned, LearnedConfig, load_checkpoint, load_strict
+from ssga_core import CheckpointError, Data, InputError, Pose, Synthesis, Synthesizer, View, hookimpl
+from ssga_synthesizer_synsin.model import (
+    LightOptions,
+    RenderOptions,
+    SynSin,
+    SynSinLight,
+    normalise,
+    official_state_dict,
+    options_from_opts,
+    to_uint8,
+)
+from ssga_synthesizer_synsin.splat import splat
+
+WEIGHTS_DIR = Path(__file__).parent / "weights"
+"""Where relative ``weights`` are looked up first (then the working directory)."""
+
+LIGHT_WEIGHTS = "synsin-light.pt"
+"""The packaged light network's file in :data:`WEIGHTS_DIR`."""
+
+OFFICIAL_WEIGHTS = "mp3d/synsin.pth"
+"""SynSin's MP3D checkpoint, as its ``download_models.sh`` lays it out (not shipped)."""
+
+RANDOM_SEED = 0
+"""Random weights are drawn from this seed: the same in every process."""
+
+
+class SynSinConfig(LearnedConfig):
+    """Which network renders, and how its points are splatted."""
+
+    weights: str = Field(
+        default=LIGHT_WEIGHTS,
+        min_length=1,
+        description="Checkpoint (relative: the plugin's weights/ folder, then the working directory): the light network "
+        "trained here (default), SynSin's 'mp3d/synsin.pth' (network = 'synsin'), or 'random' (tests only).",
+    )
+    network: Literal["light", "synsin"] = Field(
+        default="light",
+        description="'light' (this package's network, 0.6 M parameters, the packaged weights) or 'synsin' (the official "
+        "MP3D model's layout: ResNet encoder and decoder of width 64, 32-filter depth U-Net); must match the file.",
+    )
+    radius: float | None = Field(
+        default=None,
+        gt=0.0,
+        le=16.0,
+        description="Splat radius in pixels; None: the one the weights were trained with (the light file's: 1.5; "
+        "SynSin's opts: 4).",
+    )
+    points_per_pixel: int | None = Field(
+        default=None,
+        ge=1,
+        le=512,
+        description="K, the nearest points each pixel composites; None: the weights' own (light: 8; SynSin: 128).",
+    )
+    depth_tolerance: float = Field(
+        default=0.02,
+        gt=0.0,
+        le=1.0,
+        description="A source pixel is visible when its depth is within this (relative) of the nearest point landing "
+        "on its target pixel (the depth-warp synthesizer's tolerance).",
+    )
+
+
+_NETWORKS: dict[tuple[Any, ...], torch.nn.Module] = {}
+_LOCK = threading.Lock()
+
+
+class SynSinSynthesizer(Learned, Synthesizer):
+    """Learned novel-view synthesis from one RGB image (or several, jointly); see the module docstring."""
+
+    name = "synsin"
+    abbrev = "SS"
+    Config = SynSinConfig
+    consumes = frozenset({Data.RGB})
+    produces = frozenset({Data.RGB, Data.DEPTH, Data.POINT_MAP})
+    presets = {
+        "light": {},
+        "mp3d": {"network": "synsin", "weights": OFFICIAL_WEIGHTS},
+    }
+
+    def __init__(self, config: SynSinConfig | None = None) -> None:
+        super().__init__(config)
+        self.net = self._load()
+
+    @property
+    def who(self) -> str:
+        return f"{self.kind} {self.name!r}"
+
+    @property
+    def options(self) -> RenderOptions:
+        """The renderer settings: the network's, with the config's overrides."""
+        cfg: SynSinConfig = self.config  # type: ignore[assignment]
+        base: RenderOptions = self.net.options  # type: ignore[assignment]
+        changes = {k: v for k, v in (("radius", cfg.radius), ("points_per_pixel", cfg.points_per_pixel)) if v is not None}
+        return dataclasses.replace(base, **changes)
+
+    # ------------------------------------------------------------------ loading
+
+    def _load(self) -> torch.nn.Module:
+        cfg: SynSinConfig = self.config  # type: ignore[assignment]
+        device = self.device
+        if self.random_weights:
+            key: tuple[Any, ...] = (RANDOM_WEIGHTS, cfg.network, str(device))
+        else:
+            path = self.weights_file(WEIGHTS_DIR).resolve()
+            stat = path.stat()
+            key = (str(path), stat.st_mtime_ns, stat.st_size, cfg.network, str(device))
+        with _LOCK:
+            if key not in _NETWORKS:
+                net = self._random() if self.random_weights else self._from_file(path)
+                _NETWORKS[key] = net.to(device).eval()
+            return _NETWORKS[key]
+
+    def _random(self) -> torch.nn.Module:
+        cfg: SynSinConfig = self.config  # type: ignore[assignment]
+        with torch.random.fork_rng(devices=[]):
+            torch.manual_seed(RANDOM_SEED)
+            return SynSinLight() if cfg.network == "light" else SynSin()
+
+    def _from_file(self, path: Path) -> torch.nn.Module:
+        cfg: SynSinConfig = self.config  # type: ignore[assignment]
+        if cfg.network == "light":
+            expected = "a light SynSin checkpoint ({'state_dict': pts_regressor.*, encoder.*, projector.*, 'opts'})"
+            checkpoint = load_checkpoint(path, self.who, expected)
+            opts = checkpoint.get("opts") if isinstance(checkpoint, dict) else None
+            try:
+                options = LightOptions.from_json(opts) if isinstance(opts, dict) else LightOptions()
+            except (KeyError, TypeError, ValueError) as exc:
+                raise CheckpointError(
+                    f"{self.who}: config field 'weights': {path} has unreadable 'opts' ({exc!r}); expected {expected}"
+                ) from None
+            net: torch.nn.Module = SynSinLight(options)
+            state = checkpoint.get("state_dict", checkpoint) if isinstance(checkpoint, dict) else checkpoint
+            load_strict(net, state, self.who, path, expected)
+            return net
+        expected = "SynSin's checkpoint layout ({'state_dict': model.module.*, 'opts', ...}) of the MP3D model (resnet_256W8UpDown64, ngf 64)"
+        # SynSin pickles its options as an argparse.Namespace, which weights_only loading refuses unless allowed.
+        torch.serialization.add_safe_globals([argparse.Namespace])
+        checkpoint = load_checkpoint(path, self.who, expected)
+        opts = checkpoint.get("opts") if isinstance(checkpoint, dict) else None
+        net = SynSin(options_from_opts(opts))
+        state = checkpoint.get("state_dict", checkpoint) if isinstance(checkpoint, dict) else checkpoint
+        if isinstance(state, dict):
+            state, _ = official_state_dict(state, net.state_dict())
+        load_strict(net, state, self.who, path, expected)
+        return net
+
+    def __getstate__(self) -> dict[str, Any]:
+        state = self.__dict__.copy()
+        state.pop("net", None)  # worker processes load their own copy (from the file, or the same seed)
+        return state
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        self.__dict__.update(state)
+        self.net = self._load()
+
+    # ------------------------------------------------------------------ synthesis
+
+    def _synthesize(self, view: View, target: Pose) -> Synthesis:
+        return self._synthesize_from([view], target)[0]
+
+    def _synthesize_from(self, views: Sequence[View], target: Pose) -> list[Synthesis]:
+        """All the views' points in one z-buffer and one refinement, seen by the first view's camera at ``target``."""
+        cfg: SynSinConfig = self.config  # type: ignore[assignment]
+        camera = views[0].camera
+        h, w = camera.shape
+        options = self.options
+        device = self.device
+        uvs, zs, feats, depths = [], [], [], []
+        with torch.inference_mode():
+            for view in views:
+                img = normalise(view.rgb).to(device)
+                depth = self.net.depth(img)  # type: ignore[operator]
+                feats.append(self.net.features(img).flatten(2).transpose(1, 2)[0])  # type: ignore[operator]
+                d = depth[0, 0].float().cpu().numpy()
+                depths.append(d)
+                uv, z = _move(view, d, target, camera)
+                uvs.append(uv.reshape(-1, 2))
+                zs.append(z.reshape(-1))
+            uv_t = torch.from_numpy(np.concatenate(uvs)).to(device)[None]
+            z_t = torch.from_numpy(np.concatenate(zs)).to(device)[None]
+            s = splat(
+                uv_t, z_t, torch.cat(feats)[None], (h, w),
+                radius=options.radius, points_per_pixel=options.points_per_pixel, tau=options.tau, rad_pow=options.rad_pow,
+            )  # fmt: skip
+            rgb = to_uint8(self.net.refine(s))[0]  # type: ignore[operator]
+            nearest = s.nearest[0].cpu().numpy()
+            synthetic_depth = s.depth[0].float().cpu().numpy()
+        synthetic = View(rgb=rgb, pose=target, camera=camera, depth=synthetic_depth.astype(np.float32), synthetic=True)
+        out, start = [], 0
+        for view, uv, z in zip(views, uvs, zs, strict=True):
+            n = len(z)
+            near = nearest[start : start + n]
+            start += n
+            with np.errstate(invalid="ignore"):
+                visible = camera.contains(uv) & np.isfinite(near) & (z <= near * (1.0 + cfg.depth_tolerance))
+            sh, sw = view.camera.shape
+            out.append(Synthesis(view=synthetic, target_uv=uv.reshape(sh, sw, 2), visible=visible.reshape(sh, sw)))
+        return out
+
+    def predict_depth(self, view: View) -> np.ndarray:
+        """``(H, W)`` float32 metric depth the network predicts for ``view``."""
+        with torch.inference_mode():
+            return self.net.depth(normalise(view.rgb).to(self.device))[0, 0].float().cpu().numpy()  # type: ignore[operator]
+
+
+def _move(view: View, depth: np.ndarray, target: Pose, camera) -> tuple[np.ndarray, np.ndarray]:
+    """Each pixel of ``view`` at ``depth`` in ``camera`` at ``target``: ``(H*W, 2)`` uv (NaN behind it) and ``(H*W,)`` depths."""
+    if depth.shape != view.camera.shape:
+        raise InputError(f"synthesizer 'synsin': depth of shape {depth.shape} for a {view.camera.shape} view")
+    T = target.relative_to(view.pose).astype(np.float32)
+    points = view.camera.unproject(depth) @ T[:3, :3].T + T[:3, 3]
+    uv, z = camera.project(points.reshape(-1, 3))
+    return uv.astype(np.float32), z.astype(np.float32)
+
+
+@hookimpl
+def ssga_register_synthesizers() -> list[type[Synthesizer]]:
+    return [SynSinSynthesizer]

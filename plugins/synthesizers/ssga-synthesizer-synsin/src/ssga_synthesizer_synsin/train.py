@@ -1,0 +1,380 @@
+"""Train the light SynSin network on view pairs of procedural homes.
+
+    python -m ssga_synthesizer_synsin.train --out runs/synsin-light \\
+        --export plugins/synthesizers/ssga-synthesizer-synsin/src/ssga_synthesizer_synsin/weights
+
+Steps (resumable: run the same command again after an interruption and it goes on
+from the last checkpoint in ``--out``):
+
+1. **Pairs.** ``pairs_per_home`` orbit pairs (:mod:`.pairs`) in each training home
+   (procedural seeds ``train_seeds``, 3000-3005; the benchmark uses 0, 1, 2), RGB and
+   true depth, cached in ``--out``.
+2. **Training**, end to end through the splatter, as SynSin trains: each sample is a
+   pair in either direction, mirrored left-right half the time (the move mirrored with
+   it); the loss is ``L1 + ssim_weight * (1 - SSIM) / 2`` of the rendered target against
+   the true one, plus ``depth_weight`` times the L1 error of the log depth the network
+   predicts for both views against the true depth (SynSin's ``--train_depth`` with the
+   true depth of the renders; SynSin's perceptual and adversarial losses are left out:
+   a VGG19 pass per step costs more than the whole light network). Adam. The stages run
+   at growing image sizes: most steps at 128 x 128 (the depth network always sees the
+   256 x 256 view, the size it runs at, and its depth is pooled to 128), then 256 x 256.
+3. **Held-out figures** (:mod:`.evaluate`) of the initialisation and the result, and
+   the export: ``synsin-light.pt`` (``{"state_dict", "opts", "provenance"}``) and
+   ``synsin-light.json`` (the provenance and the file's SHA-256).
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import datetime
+import hashlib
+import json
+import platform
+import shlex
+import sys
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+
+from ssga_bench import atomic_write_bytes, checkpoint_bytes, load_checkpoint, write_json
+from ssga_core import InputError
+from ssga_synthesizer_synsin.evaluate import HeldOut, evaluate, render_heldout
+from ssga_synthesizer_synsin.model import LightOptions, SynSinLight, parameters, render
+from ssga_synthesizer_synsin.pairs import TRAIN_SEEDS, Pairs, render_pairs
+
+EXPORT_NAME = "synsin-light"
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    """Everything a run depends on (stored in ``--out`` and in the exported weights)."""
+
+    train_seeds: tuple[int, ...] = TRAIN_SEEDS
+    pairs_per_home: int = 200
+    distance_m: tuple[float, float] = (0.6, 1.4)
+    max_turn_deg: float = 60.0
+    stages: tuple[tuple[int, int, int], ...] = ((128, 250, 8), (256, 60, 2))
+    """(image size, optimiser steps, batch size) of each stage."""
+    lr: tuple[float, ...] = (1e-3, 3e-4)
+    ssim_weight: float = 1.0
+    depth_weight: float = 1.0
+    heldout: HeldOut = field(default_factory=HeldOut)
+    checkpoint_every: int = 25
+    seed: int = 0
+
+    def to_json(self) -> dict[str, Any]:
+        return json.loads(json.dumps(dataclasses.asdict(self)))
+
+
+def log(message: str) -> None:
+    print(f"[{datetime.datetime.now().strftime('%H:%M:%S')}] {message}", flush=True)
+
+
+class Run:
+    """One training run in ``out``: its caches, checkpoints and timings."""
+
+    def __init__(self, config: TrainConfig, out: Path) -> None:
+        self.config, self.out = config, out
+        out.mkdir(parents=True, exist_ok=True)
+        stored = out / "config.json"
+        if stored.is_file():
+            if json.loads(stored.read_text()) != config.to_json():
+                raise InputError(f"{out}: holds a run of another config ({stored}); use a new --out or delete it")
+        else:
+            write_json(stored, config.to_json())
+        times = out / "times.json"
+        self.times: dict[str, float] = json.loads(times.read_text()) if times.is_file() else {}
+
+    def timed(self, phase: str, seconds: float) -> None:
+        self.times[phase] = self.times.get(phase, 0.0) + seconds
+        write_json(self.out / "times.json", self.times)
+
+    def pairs(self) -> Pairs:
+        parts = []
+        c = self.config
+        for seed in c.train_seeds:
+            cache = self.out / f"pairs-{seed}.npz"
+            if cache.is_file():
+                parts.append(Pairs.load(cache))
+                continue
+            t = time.perf_counter()
+            part = render_pairs(seed, c.pairs_per_home, distance_m=c.distance_m, max_turn_deg=c.max_turn_deg)
+            tmp = cache.with_suffix(".tmp.npz")
+            np.savez(tmp, **part.arrays())
+            tmp.replace(cache)
+            self.timed("render", time.perf_counter() - t)
+            log(f"home {seed}: {len(part)} pairs rendered ({time.perf_counter() - t:.0f} s)")
+            parts.append(part)
+        return Pairs.concat(parts)
+
+    def train(self, net: SynSinLight, data: Pairs) -> tuple[SynSinLight, list[list[float]]]:
+        c = self.config
+        state_path = self.out / "state.pt"
+        optimizer = torch.optim.Adam(net.parameters(), lr=c.lr[0])
+        stage, step, history = 0, 0, []
+        if state_path.is_file():
+            state = load_checkpoint(state_path, "training state")
+            net.load_state_dict(state["state_dict"])
+            optimizer.load_state_dict(state["optimizer"])
+            stage, step, history = int(state["stage"]), int(state["step"]), [list(h) for h in state["history"]]
+            log(f"resuming at stage {stage + 1}, step {step}")
+        moves = _moves(data)
+        while stage < len(c.stages):
+            size, steps, batch = c.stages[stage]
+            for g in optimizer.param_groups:
+                g["lr"] = c.lr[stage]
+            t0, window = time.perf_counter(), []
+            net.train()
+            while step < steps:
+                rng = np.random.default_rng([c.seed, 2, stage, step])
+                losses = _step(net, optimizer, data, moves, size, batch, c, rng)
+                step += 1
+                window.append(losses)
+                history.append([stage, step, *losses])
+                if step % c.checkpoint_every == 0 or step == steps:
+                    elapsed = time.perf_counter() - t0
+                    self.timed(f"stage{stage + 1}", elapsed)
+                    t0 = time.perf_counter()
+                    self._save_state(net, optimizer, stage, step, history)
+                    total, l1, ssim, depth = np.mean(window, axis=0)
+                    rate = len(window) * batch / elapsed
+                    eta = (steps - step) * batch / rate
+                    log(
+                        f"stage {stage + 1}/{len(c.stages)} ({size} px) step {step}/{steps}: loss {total:.4f} (L1 {l1:.4f}, "
+                        f"SSIM {ssim:.3f}, log-depth L1 {depth:.3f}), {rate:.1f} pairs/s, stage ends in {eta / 60:.1f} min"
+                    )
+                    window = []
+            stage, step = stage + 1, 0
+            self._save_state(net, optimizer, stage, step, history)
+        return net, history
+
+    def _save_state(self, net, optimizer, stage, step, history) -> None:
+        state = {
+            "state_dict": net.state_dict(),
+            "optimizer": optimizer.state_dict(),
+            "stage": stage,
+            "step": step,
+            "history": history,
+        }
+        atomic_write_bytes(self.out / "state.pt", checkpoint_bytes(state))
+
+
+def _moves(data: Pairs) -> np.ndarray:
+    """``(N, 2, 4, 4)``: for each pair, ``T_target<-source`` and the reverse."""
+    out = np.empty((len(data), 2, 4, 4), dtype=np.float32)
+    for i in range(len(data)):
+        a, b = data.pose(i, 0), data.pose(i, 1)
+        out[i, 0] = b.relative_to(a)
+        out[i, 1] = a.relative_to(b)
+    return out
+
+
+MIRROR = torch.diag(torch.tensor([-1.0, 1.0, 1.0, 1.0]))
+"""Mirroring images left-right mirrors the camera frame's x: ``T' = M T M``."""
+
+
+def intrinsics(size: int, full: int = 256) -> torch.Tensor:
+    """The benchmark camera's K (hfov 90) at ``size`` x ``size`` pixels (area-pooled from ``full``)."""
+    f = (size / 2.0) / np.tan(np.radians(45.0))
+    c = (size - 1) / 2.0
+    return torch.tensor([[f, 0.0, c], [0.0, f, c], [0.0, 0.0, 1.0]], dtype=torch.float32)
+
+
+def batch_tensors(data: Pairs, moves: np.ndarray, rng: np.random.Generator, batch: int) -> dict[str, torch.Tensor]:
+    """A random batch at full size: source and target images in [-1, 1], true depths, moves (mirrored at random)."""
+    idx = rng.integers(0, len(data), batch)
+    direction = rng.integers(0, 2, batch)
+    mirror = rng.random(batch) < 0.5
+    rgb = torch.from_numpy(data.rgb[idx]).permute(0, 1, 4, 2, 3).float().div(127.5).sub(1.0)  # (B, 2, 3, H, W)
+    depth = torch.from_numpy(data.depth[idx].astype(np.float32))  # (B, 2, H, W)
+    src_k = torch.from_numpy(direction)
+    ar = torch.arange(batch)
+    source, target = rgb[ar, src_k], rgb[ar, 1 - src_k]
+    source_depth, target_depth = depth[ar, src_k], depth[ar, 1 - src_k]
+    T = torch.from_numpy(moves[idx, direction])
+    flip = torch.from_numpy(mirror)
+    source = torch.where(flip[:, None, None, None], source.flip(-1), source)
+    target = torch.where(flip[:, None, None, None], target.flip(-1), target)
+    source_depth = torch.where(flip[:, None, None], source_depth.flip(-1), source_depth)
+    target_depth = torch.where(flip[:, None, None], target_depth.flip(-1), target_depth)
+    T = torch.where(flip[:, None, None], MIRROR @ T @ MIRROR, T)
+    return {
+        "source": source,
+        "target": target,
+        "source_depth": source_depth[:, None],
+        "target_depth": target_depth[:, None],
+        "T": T,
+    }
+
+
+def ssim(a: torch.Tensor, b: torch.Tensor, sigma: float = 1.5, size: int = 11) -> torch.Tensor:
+    """Mean SSIM of images in [-1, 1] (data range 2), Gaussian window, per channel."""
+    x = torch.arange(size, dtype=a.dtype) - (size - 1) / 2
+    g = torch.exp(-(x**2) / (2 * sigma**2))
+    g = (g / g.sum()).to(a.device)
+    c = a.shape[1]
+    kx = g.view(1, 1, 1, size).expand(c, 1, 1, size)
+    ky = g.view(1, 1, size, 1).expand(c, 1, size, 1)
+
+    def blur(t: torch.Tensor) -> torch.Tensor:
+        return F.conv2d(F.conv2d(t, kx, groups=c), ky, groups=c)
+
+    c1, c2 = (0.01 * 2) ** 2, (0.03 * 2) ** 2
+    mu_a, mu_b = blur(a), blur(b)
+    var_a, var_b, cov = blur(a * a) - mu_a**2, blur(b * b) - mu_b**2, blur(a * b) - mu_a * mu_b
+    s = ((2 * mu_a * mu_b + c1) * (2 * cov + c2)) / ((mu_a**2 + mu_b**2 + c1) * (var_a + var_b + c2))
+    return s.mean()
+
+
+def _log_depth_l1(pred: torch.Tensor, true: torch.Tensor) -> torch.Tensor:
+    known = true > 0
+    return (pred[known].log() - true[known].log()).abs().mean() if known.any() else pred.sum() * 0.0
+
+
+def _step(net: SynSinLight, optimizer, data: Pairs, moves: np.ndarray, size: int, batch: int, c: TrainConfig, rng) -> list[float]:
+    """One optimiser step; returns ``[loss, L1, SSIM, log-depth L1]``."""
+    b = batch_tensors(data, moves, rng, batch)
+    full = b["source"].shape[-1]
+    depth = net.depth(b["source"])  # the depth network at the size it runs at
+    depth_loss = _log_depth_l1(depth, b["source_depth"])
+    source, target = b["source"], b["target"]
+    if size != full:
+        factor = full // size
+        source, target = F.avg_pool2d(source, factor), F.avg_pool2d(target, factor)
+        depth = F.avg_pool2d(depth, factor)
+    out, _, _ = render(net, source, intrinsics(size, full), b["T"], depth=depth)
+    l1 = (out - target).abs().mean()
+    s = ssim(out, target)
+    loss = l1 + c.ssim_weight * (1 - s) / 2 + c.depth_weight * depth_loss
+    optimizer.zero_grad()
+    loss.backward()
+    optimizer.step()
+    return [loss.item(), l1.item(), s.item(), depth_loss.item()]
+
+
+def export(net: SynSinLight, provenance: dict[str, Any], folder: Path) -> Path:
+    folder.mkdir(parents=True, exist_ok=True)
+    path = folder / f"{EXPORT_NAME}.pt"
+    data = checkpoint_bytes({"state_dict": net.state_dict(), "opts": net.light.to_json(), "provenance": provenance})
+    atomic_write_bytes(path, data)
+    write_json(
+        folder / f"{EXPORT_NAME}.json",
+        {**provenance, "file": path.name, "bytes": len(data), "sha256": hashlib.sha256(data).hexdigest()},
+    )
+    return path
+
+
+def _heldout(config: TrainConfig, init: SynSinLight, net: SynSinLight, out: Path) -> dict[str, Any]:
+    from ssga_synthesizer_synsin.plugin import SynSinConfig, SynSinSynthesizer
+
+    heldout = render_heldout(config.heldout)
+    figures = {}
+    for name, model in (("init", init), ("trained", net)):
+        path = out / f"{name}-eval.pt"
+        atomic_write_bytes(path, checkpoint_bytes({"state_dict": model.state_dict(), "opts": model.light.to_json()}))
+        synthesizer = SynSinSynthesizer(SynSinConfig(weights=str(path.resolve()), device="cpu"))
+        figures[name] = evaluate(synthesizer, heldout, references=name == "trained")
+    return figures
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m ssga_synthesizer_synsin.train", description=__doc__.split("\n\n")[0])
+    parser.add_argument("--out", type=Path, required=True, help="run folder: pair caches, checkpoints (resumable), results")
+    parser.add_argument(
+        "--export", type=Path, default=None, help="folder for synsin-light.pt and synsin-light.json (default: --out)"
+    )
+    parser.add_argument("--threads", type=int, default=1, help="torch threads (default 1)")
+    parser.add_argument("--no-eval", action="store_true", help="skip the held-out figures")
+    args = parser.parse_args(argv)
+    torch.set_num_threads(args.threads)
+    try:
+        run_training(TrainConfig(), args.out, args.export or args.out, evaluate_heldout=not args.no_eval, argv=argv)
+    except InputError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 1
+    return 0
+
+
+def run_training(
+    config: TrainConfig, out: Path, export_to: Path, *, evaluate_heldout: bool = True, argv: Sequence[str] | None = None
+) -> Path:
+    """Every step of the module docstring; returns the exported weights' path."""
+    run = Run(config, out)
+    started = datetime.datetime.now(datetime.UTC)
+    data = run.pairs()
+    log(f"{len(data)} training pairs of {len(config.train_seeds)} homes")
+    torch.manual_seed(config.seed)
+    init = SynSinLight(LightOptions())
+    net = SynSinLight(LightOptions())
+    net.load_state_dict(init.state_dict())
+    net, history = run.train(net, data)
+    net.eval()
+    training_s = sum(run.times.values())
+    figures: dict[str, Any] = {
+        "training_seconds": round(training_s, 1),
+        "seconds": {k: round(v, 1) for k, v in run.times.items()},
+    }
+    figures["loss"] = _loss_summary(history, config)
+    if evaluate_heldout:
+        t = time.perf_counter()
+        figures["heldout"] = _heldout(config, init, net, out)
+        figures["heldout_seconds"] = round(time.perf_counter() - t, 1)
+        log(f"held-out: {json.dumps(figures['heldout'])}")
+    command = "python -m ssga_synthesizer_synsin.train " + shlex.join(sys.argv[1:] if argv is None else list(argv))
+    provenance = {
+        "what": f"light SynSin ({parameters(net) / 1e6:.2f} M parameters: half-resolution depth U-Net, feature encoder, refinement U-Net) trained on procedural homes",
+        "command": command,
+        "date": started.isoformat(timespec="seconds"),
+        "train_seeds": list(config.train_seeds),
+        "heldout_seeds": list(config.heldout.seeds),
+        "config": config.to_json(),
+        "opts": net.light.to_json(),
+        "figures": figures,
+        "torch": str(torch.__version__),
+        "python": platform.python_version(),
+        "threads": torch.get_num_threads(),
+    }
+    path = export(net, provenance, export_to)
+    log(f"exported {path} ({path.stat().st_size / 1e6:.1f} MB); training took {training_s / 60:.1f} min")
+    return path
+
+
+def _loss_summary(history: list[list[float]], config: TrainConfig) -> list[dict[str, Any]]:
+    out = []
+    for stage, (size, steps, batch) in enumerate(config.stages):
+        rows = np.array([h for h in history if int(h[0]) == stage]).reshape(-1, 6)
+        if len(rows):
+            w = max(1, min(25, len(rows) // 4))
+            first, last = rows[:w, 2:].mean(0), rows[-w:, 2:].mean(0)
+            out.append(
+                {
+                    "size": size,
+                    "steps": steps,
+                    "batch": batch,
+                    "window": w,
+                    "first": {
+                        "loss": round(float(first[0]), 4),
+                        "l1": round(float(first[1]), 4),
+                        "ssim": round(float(first[2]), 4),
+                        "log_depth_l1": round(float(first[3]), 4),
+                    },
+                    "last": {
+                        "loss": round(float(last[0]), 4),
+                        "l1": round(float(last[1]), 4),
+                        "ssim": round(float(last[2]), 4),
+                        "log_depth_l1": round(float(last[3]), 4),
+                    },
+                }
+            )
+    return out
+
+
+if __name__ == "__main__":
+    sys.exit(main())
