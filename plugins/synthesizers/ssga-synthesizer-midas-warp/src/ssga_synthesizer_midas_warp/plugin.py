@@ -1,0 +1,220 @@
+"""The ``midas-warp`` synthesizer: depth-warp on metric depth estimated from RGB alone by MiDaS.
+
+For each source view MiDaS (:mod:`.model`) predicts relative inverse depth, the
+calibration stored beside the weights (:mod:`.calibration`) turns it into metric depth
+(clamped to ``depth_range``), and :class:`ssga_synthesizer_depth_warp.plugin.DepthWarp`,
+whose every option this config inherits, renders the target pose. The view's own
+depth, if it has one, is never read: views without depth synthesize. The synthetic
+view carries the metric depth it was rendered with, so several views fuse.
+
+Weights: the default is the light network trained here on procedural homes the
+benchmark never shows (``weights/midas-light.pt``, calibrated in
+``weights/midas-light.calibration.json``; how both were made: the README and
+``weights/midas-light.json``); preset ``v21-small`` selects the official MiDaS v2.1
+small file, which the user places and calibrates (``python -m
+ssga_synthesizer_midas_warp.calibrate``).
+"""
+
+from __future__ import annotations
+
+import threading
+import weakref
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+from pydantic import Field, model_validator
+
+from ssga_core import Data, Pose, Synthesis, Synthesizer, View, hookimpl
+from ssga_bench import RANDOM_WEIGHTS, Learned, LearnedConfig, load_checkpoint, load_strict
+from ssga_synthesizer_depth_warp.plugin import DepthWarp, DepthWarpConfig
+from ssga_synthesizer_midas_warp.calibration import Calibration, calibration_path, minmax_depth, sha256_file
+
+WEIGHTS_DIR = Path(__file__).parent / "weights"
+"""Where relative ``weights`` and ``calibration`` paths are looked up first (then the working directory)."""
+
+LIGHT_WEIGHTS = "midas-light.pt"
+"""The packaged light network's file in :data:`WEIGHTS_DIR`."""
+
+RANDOM_SEED = 0
+"""Random weights are :func:`~.model.init_weights` with this seed: the same in every process."""
+
+AUTO, MINMAX = "auto", "minmax"
+
+
+class MidasWarpConfig(DepthWarpConfig, LearnedConfig):
+    """MiDaS's network, weights and calibration; the warp's fields are depth-warp's."""
+
+    weights: str = Field(
+        default=LIGHT_WEIGHTS,
+        min_length=1,
+        description="Checkpoint (relative: the plugin's weights/ folder, then the working directory): the light network trained "
+        "here (default), the official 'midas_v21_small_256.pt' (network = 'v21-small'), or 'random' (tests only).",
+    )
+    network: Literal["light", "v21-small"] = Field(
+        default="light",
+        description="'light': the narrow MiDaS-small trained here (the packaged weights); 'v21-small': MiDaS v2.1 small "
+        "(EfficientNet-Lite3, 64 features), the official file's layout. Must match the weights.",
+    )
+    calibration: str = Field(
+        default=AUTO,
+        min_length=1,
+        description="How relative inverse depth becomes metric: 'auto' reads <weights stem>.calibration.json beside the "
+        "weights (fitted offline on procedural homes; random weights use 'minmax'); a path names a calibration file "
+        "(relative: the weights/ folder, then the working directory); 'minmax' spreads each image's prediction over "
+        "depth_range (no calibration, no scale: a fallback).",
+    )
+    depth_range: tuple[float, float] = Field(
+        default=(0.2, 20.0),
+        description="Estimated depths are clamped to [near, far] metres (inverse depths at or below 1 / far become far).",
+    )
+
+    @model_validator(mode="after")
+    def _range_is_sane(self) -> MidasWarpConfig:
+        near, far = self.depth_range
+        if not 0.0 < near < far:
+            raise ValueError(f"depth_range must be 0 < near < far, got {self.depth_range}")
+        return self
+
+
+_NETWORKS: dict[tuple[Any, ...], Any] = {}
+_NETWORKS_LOCK = threading.Lock()
+
+
+class MidasWarp(Learned, DepthWarp):
+    """Estimates each view's metric depth with MiDaS, then warps it as depth-warp does.
+
+    The network loads when the synthesizer is made (a bad ``weights`` or ``calibration``
+    file is reported before any work), once per process for every instance that uses the
+    same file. Each real view's depth is estimated once and cached for as long as the
+    ``View`` object lives (the pipeline renders one view at many targets).
+    """
+
+    name = "midas-warp"
+    abbrev = "MW"
+    Config = MidasWarpConfig
+    consumes = frozenset({Data.RGB})
+    produces = frozenset({Data.RGB, Data.DEPTH, Data.POINT_MAP})
+    presets = {
+        **DepthWarp.presets,
+        "light": {},
+        "v21-small": {"network": "v21-small", "weights": "midas_v21_small_256.pt"},
+    }
+
+    def __init__(self, config: MidasWarpConfig | None = None) -> None:
+        super().__init__(config)
+        self.net, self.calibration = self._load()
+        self._estimated: weakref.WeakKeyDictionary[View, View] = weakref.WeakKeyDictionary()
+        self._estimate_lock = threading.Lock()
+
+    @property
+    def who(self) -> str:
+        return f"{self.kind} {self.name!r}"
+
+    # ------------------------------------------------------------------ loading
+
+    def _load(self) -> tuple[Any, Calibration | None]:
+        from ssga_synthesizer_midas_warp.model import NETWORKS, MidasNet, init_weights
+
+        cfg: MidasWarpConfig = self.config  # type: ignore[assignment]
+        device = self.device
+        if self.random_weights:
+            key: tuple[Any, ...] = (RANDOM_WEIGHTS, cfg.network, str(device))
+            path = None
+        else:
+            path = self.weights_file(WEIGHTS_DIR).resolve()
+            stat = path.stat()
+            key = (str(path), stat.st_mtime_ns, stat.st_size, cfg.network, str(device))
+        with _NETWORKS_LOCK:
+            if key not in _NETWORKS:
+                if path is None:  # the training's seeded initialisation: the same in every process, its output positive and varied
+                    net, sha = init_weights(MidasNet(NETWORKS[cfg.network]), RANDOM_SEED), ""
+                else:
+                    net, sha = self._from_file(path), sha256_file(path)
+                _NETWORKS[key] = (net.to(device).eval(), sha)
+            net, sha = _NETWORKS[key]
+        return net, self._calibration(path, sha)
+
+    def _from_file(self, path: Path):
+        from ssga_synthesizer_midas_warp.model import NETWORKS, MidasNet
+
+        cfg: MidasWarpConfig = self.config  # type: ignore[assignment]
+        net = MidasNet(NETWORKS[cfg.network])
+        expected = (
+            f"a MiDaS-small state dict of the {cfg.network!r} network (pretrained.*, scratch.*; {len(net.state_dict())} keys), "
+            "plain or under 'state_dict' or 'model'"
+        )
+        checkpoint = load_checkpoint(path, self.who, expected)
+        state = checkpoint
+        if isinstance(checkpoint, dict):
+            for wrapper in ("state_dict", "model"):  # ours, and MiDaS's training format {'model', 'optimizer'}
+                if isinstance(checkpoint.get(wrapper), dict):
+                    state = checkpoint[wrapper]
+                    break
+        load_strict(net, state, self.who, path, expected)
+        return net
+
+    def _calibration(self, weights: Path | None, sha: str) -> Calibration | None:
+        """The calibration to use, or ``None`` for the per-image min/max prior."""
+        cfg: MidasWarpConfig = self.config  # type: ignore[assignment]
+        if cfg.calibration == MINMAX or (cfg.calibration == AUTO and weights is None):
+            return None
+        if cfg.calibration == AUTO:
+            assert weights is not None
+            path = calibration_path(weights)
+        else:
+            path = Path(cfg.calibration).expanduser()
+            if not path.is_absolute():
+                path = next((p for p in (WEIGHTS_DIR / path, Path.cwd() / path) if p.is_file()), Path.cwd() / path)
+        calibration = Calibration.read(path, self.who)
+        if weights is None:  # random weights with an explicit calibration file: nothing to check it against
+            return calibration
+        return calibration.check(cfg.network, sha, path, self.who)
+
+    # ------------------------------------------------------------------ depth
+
+    def predict(self, images: Sequence[np.ndarray]) -> np.ndarray:
+        """MiDaS's relative inverse depth ``(N, H, W)`` of same-sized uint8 RGB images."""
+        from ssga_synthesizer_midas_warp.model import predict
+
+        return predict(self.net, images, self.device)
+
+    def estimate_depth(self, images: Sequence[np.ndarray]) -> np.ndarray:
+        """Metric planar depth ``(N, H, W)`` float32 of same-sized uint8 RGB images, within ``depth_range``."""
+        cfg: MidasWarpConfig = self.config  # type: ignore[assignment]
+        pred = self.predict(images)
+        if self.calibration is None:
+            return minmax_depth(pred, cfg.depth_range)
+        return self.calibration.depth(pred, cfg.depth_range)
+
+    def with_depth(self, views: Sequence[View]) -> list[View]:
+        """Each view with its estimated depth in place of any it had (cached per ``View`` object)."""
+        with self._estimate_lock:
+            out: list[View | None] = [self._estimated.get(v) for v in views]
+        todo: dict[tuple[int, int], list[int]] = {}
+        for i, (view, done) in enumerate(zip(views, out)):
+            if done is None:
+                todo.setdefault(view.camera.shape, []).append(i)
+        for indices in todo.values():  # one network batch per image size
+            depth = self.estimate_depth([views[i].rgb for i in indices])
+            for i, d in zip(indices, depth):
+                v = views[i]
+                out[i] = View(rgb=v.rgb, pose=v.pose, camera=v.camera, depth=d, semantic=v.semantic, instance=v.instance, synthetic=v.synthetic)
+                with self._estimate_lock:
+                    self._estimated[v] = out[i]  # type: ignore[assignment]
+        return out  # type: ignore[return-value]
+
+    # ------------------------------------------------------------------ synthesis
+
+    def _synthesize(self, view: View, target: Pose) -> Synthesis:
+        return self._synthesize_from([view], target)[0]
+
+    def _synthesize_from(self, views: Sequence[View], target: Pose) -> list[Synthesis]:
+        """depth-warp's joint render of the views with their estimated depth."""
+        return super()._synthesize_from(self.with_depth(views), target)
+
+
+@hookimpl
+def ssga_register_synthesizers() -> list[type[Synthesizer]]:
+    return [MidasWarp]
