@@ -28,6 +28,8 @@ _EXPORTS = {
     "load_strict": "ssga_bench.learned",
     "checkpoint_bytes": "ssga_bench.learned",
     "resolve_device": "ssga_bench.learned",
+    "TrainingRun": "ssga_bench.learned",
+    "training_log": "ssga_bench.learned",
     # files: atomic writes, one-line read errors
     "OutputError": "ssga_bench.io",
     "atomic_write_bytes": "ssga_bench.io",

@@ -52,7 +52,8 @@ import torch
 import torch.nn.functional as F
 
 from ssga_core import InputError
-from ssga_bench import atomic_write_bytes, checkpoint_bytes, load_checkpoint, write_json
+from ssga_bench import TrainingRun, atomic_write_bytes, checkpoint_bytes, load_checkpoint, write_json
+from ssga_bench import training_log as log
 from ssga_synthesizer_midas_warp.calibrate import calibrate
 from ssga_synthesizer_midas_warp.calibration import calibration_path, sha256_file
 from ssga_synthesizer_midas_warp.evaluate import evaluate_network
@@ -93,10 +94,6 @@ class TrainConfig:
 
     def to_json(self) -> dict[str, Any]:
         return json.loads(json.dumps(dataclasses.asdict(self)))
-
-
-def log(message: str) -> None:
-    print(f"[{datetime.datetime.now().strftime('%H:%M:%S')}] {message}", flush=True)
 
 
 # ---------------------------------------------------------------------- the loss
@@ -140,24 +137,10 @@ def ssi_loss(pred: torch.Tensor, target: torch.Tensor, mask: torch.Tensor, alpha
 # ---------------------------------------------------------------------- the run
 
 
-class Run:
+class Run(TrainingRun):
     """One training run in ``out``: its caches, checkpoints and timings."""
 
-    def __init__(self, config: TrainConfig, out: Path) -> None:
-        self.config, self.out = config, out
-        out.mkdir(parents=True, exist_ok=True)
-        stored = out / "config.json"
-        if stored.is_file():
-            if json.loads(stored.read_text()) != config.to_json():
-                raise InputError(f"{out}: holds a run of another config ({stored}); use a new --out or delete it")
-        else:
-            write_json(stored, config.to_json())
-        times = out / "times.json"
-        self.times: dict[str, float] = json.loads(times.read_text()) if times.is_file() else {}
-
-    def timed(self, phase: str, seconds: float) -> None:
-        self.times[phase] = self.times.get(phase, 0.0) + seconds
-        write_json(self.out / "times.json", self.times)
+    config: TrainConfig
 
     def views(self, seeds: Sequence[int], per_home: int, phase: str) -> Views:
         t = time.perf_counter()
