@@ -45,6 +45,30 @@ def test_regions_from_labels_renumber_and_box():
     np.testing.assert_array_equal(kept.mask(0), labels == 7)
 
 
+def test_region_attributes_travel_with_their_regions():
+    labels = np.array([[0, 0, 1], [2, 2, 1]], np.int32)
+    regions = Regions(
+        labels=labels,
+        boxes=np.array([[0, 0, 1, 0], [2, 0, 2, 1], [0, 1, 1, 1]], np.float32),
+        categories=np.array([5, 6, 7], np.int32),
+        names=("sofa", "lamp", "rug"),
+        scores=np.array([0.9, 0.5, 0.7], np.float32),
+    )
+    kept = regions.select(np.array([True, False, True]))
+    assert kept.names == ("sofa", "rug")
+    np.testing.assert_array_equal(kept.scores, np.array([0.9, 0.7], np.float32))
+    np.testing.assert_array_equal(kept.categories, [5, 7])
+    # Joined: names survive where every part has them, scores vanish where one lacks them.
+    other = Regions(labels=np.zeros((2, 3), np.int32), boxes=np.array([[0, 0, 2, 1]], np.float32), names=("wall",))
+    joined = Regions.concatenate([kept, other], np.where(kept.labels >= 0, kept.labels, 2))
+    assert joined.names == ("sofa", "rug", "wall")
+    assert joined.scores is None and joined.categories is None
+    with pytest.raises(InputError, match="Regions.names: expected a tuple of 3 strings"):
+        Regions(labels=labels, boxes=regions.boxes, names=("sofa",))
+    with pytest.raises(InputError, match="Regions.scores"):
+        Regions(labels=labels, boxes=regions.boxes, scores=np.ones(2, np.float32))
+
+
 def test_regions_reject_labels_without_boxes():
     with pytest.raises(InputError, match="label 2 has no box"):
         Regions(labels=np.full((4, 4), 2, np.int32), boxes=np.zeros((1, 4), np.float32))

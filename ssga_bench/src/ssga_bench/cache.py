@@ -106,10 +106,14 @@ class FeatureCache:
 
 def _pack_regions(regions: Regions) -> dict[str, np.ndarray]:
     arrays = {"labels": regions.labels, "boxes": regions.boxes}
-    if regions.categories is not None:
-        arrays["categories"] = regions.categories
+    for name, value in regions.attributes().items():
+        # Names as a fixed-width unicode array: npz stores it without pickling.
+        arrays[name] = np.array(value, dtype=str) if isinstance(value, tuple) else value
     return arrays
 
 
 def _unpack_regions(arrays: dict[str, np.ndarray]) -> Regions:
-    return Regions(labels=arrays["labels"], boxes=arrays["boxes"], categories=arrays.get("categories"))
+    attributes = {name: arrays[name] for name in Regions.PER_REGION if name in arrays}
+    if "names" in attributes:
+        attributes["names"] = tuple(str(n) for n in attributes["names"])
+    return Regions(labels=arrays["labels"], boxes=arrays["boxes"], **attributes)

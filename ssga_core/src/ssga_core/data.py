@@ -7,6 +7,7 @@ not three stages later. Pixel and frame conventions are those of :mod:`ssga_core
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from enum import Enum
 from typing import ClassVar
@@ -137,11 +138,22 @@ class Regions:
             inclusive. By default the bounding box of the mask; a detector may give
             its own, and a synthesizer moves them with the point map.
         categories: optional ``(K,)`` int32 semantic category of each region.
+        names: optional class name of each region (``K`` strings), for the people who
+            look at a scene graph: a segmenter's or detector's vocabulary entry.
+        scores: optional ``(K,)`` float32 confidence of each region (a detector's score).
+
+    The optional per-region attributes travel with their regions wherever regions are
+    selected, moved by a synthesizer or joined (``PER_REGION`` lists them, so each of
+    those places carries them all without naming them).
     """
+
+    PER_REGION: ClassVar[tuple[str, ...]] = ("categories", "names", "scores")
 
     labels: np.ndarray
     boxes: np.ndarray
     categories: np.ndarray | None = None
+    names: tuple[str, ...] | None = None
+    scores: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         if not isinstance(self.labels, np.ndarray) or self.labels.ndim != 2:
@@ -153,6 +165,10 @@ class Regions:
             raise InputError(f"Regions.labels: label {int(self.labels.max())} has no box (there are {k} boxes)")
         if self.categories is not None:
             _check_array("Regions.categories", self.categories, (k,), (np.integer,))
+        if self.names is not None and (not isinstance(self.names, tuple) or len(self.names) != k):
+            raise InputError(f"Regions.names: expected a tuple of {k} strings, got {type(self.names).__name__} of {len(self.names)}")
+        if self.scores is not None:
+            _check_array("Regions.scores", self.scores, (k,), (np.floating,))
 
     @classmethod
     def from_labels(cls, labels: np.ndarray, categories: np.ndarray | None = None) -> Regions:
@@ -193,8 +209,32 @@ class Regions:
         lut = np.full(len(self) + 1, -1, dtype=np.int32)
         lut[np.flatnonzero(keep)] = np.arange(int(keep.sum()), dtype=np.int32)
         labels = lut[np.where(self.labels >= 0, self.labels, len(self))]
-        cats = None if self.categories is None else self.categories[keep]
-        return Regions(labels=labels, boxes=self.boxes[keep], categories=cats)
+        return Regions(labels=labels, boxes=self.boxes[keep], **_take(self.attributes(), np.flatnonzero(keep)))
+
+    def attributes(self) -> dict[str, np.ndarray | tuple[str, ...]]:
+        """The optional per-region attributes this instance has (``PER_REGION`` names, present ones only)."""
+        return {name: getattr(self, name) for name in self.PER_REGION if getattr(self, name) is not None}
+
+    @classmethod
+    def concatenate(cls, parts: Sequence[Regions], labels: np.ndarray) -> Regions:
+        """Several parts' regions as one, in order, over a joined label map already offset to match.
+
+        An optional attribute survives only where every part has it.
+        """
+        boxes = np.concatenate([r.boxes for r in parts]).astype(np.float32)
+        joined: dict[str, np.ndarray | tuple[str, ...]] = {}
+        for name in cls.PER_REGION:
+            values = [getattr(r, name) for r in parts]
+            if all(v is not None for v in values):
+                joined[name] = sum(values, ()) if name == "names" else np.concatenate(values)
+        return cls(labels=labels, boxes=boxes, **joined)
+
+
+def _take(attributes: dict[str, np.ndarray | tuple[str, ...]], index: np.ndarray) -> dict[str, np.ndarray | tuple[str, ...]]:
+    return {
+        name: tuple(value[i] for i in index) if isinstance(value, tuple) else value[index]
+        for name, value in attributes.items()
+    }
 
 
 @dataclass(frozen=True, eq=False)

@@ -274,10 +274,7 @@ def _join(states: Sequence[_State]) -> _State:
         sizes = [len(s.regions) for s in states]
         offsets = np.concatenate([[0], np.cumsum(sizes)[:-1]]).astype(np.int32)
         labels = _first_labelled([s.regions.labels for s in states], offsets.tolist())
-        boxes = np.concatenate([s.regions.boxes for s in states]).astype(np.float32)
-        cats = [s.regions.categories for s in states]
-        categories = np.concatenate(cats).astype(np.int32) if all(c is not None for c in cats) else None
-        joined.regions = Regions(labels=labels, boxes=boxes, categories=categories)
+        joined.regions = Regions.concatenate([s.regions for s in states], labels)
     else:
         offsets = np.zeros(len(states), np.int32)
     if all(s.local is not None for s in states):
@@ -379,7 +376,7 @@ def carry_regions(regions: Regions, syn: Synthesis) -> tuple[np.ndarray, Regions
     limit = np.array([camera.width - 1, camera.height - 1], dtype=np.float32)
     boxes = np.zeros((k, 4), dtype=np.float32)
     boxes[keep] = np.concatenate([np.clip(np.nanmin(kept, axis=1), 0, limit), np.clip(np.nanmax(kept, axis=1), 0, limit)], axis=1)
-    moved = Regions(labels=labels, boxes=boxes, categories=regions.categories)
+    moved = dataclasses.replace(regions, labels=labels, boxes=boxes)
     return keep, moved.select(keep)
 
 
