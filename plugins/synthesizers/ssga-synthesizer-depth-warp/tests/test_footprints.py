@@ -225,3 +225,23 @@ def test_surface_links_are_computed_once_per_view(monkeypatch):
     assert len(calls) == 2
     DepthWarp(DepthWarpConfig(footprint="square", resample="nearest")).synthesize(view, view.pose)
     assert len(calls) == 2  # one pixel per point and its own colour need no links
+
+
+@pytest.mark.parametrize("axis", [0, 1])
+@pytest.mark.parametrize("step", [0.03, 0.1, 0.3])
+def test_a_steep_ramp_stays_visible_where_its_own_points_land(axis, step):
+    # Inverse depth grows by `step` of its base per pixel: every pixel is nearer than its
+    # neighbour by more than depth_tolerance, yet one surface. Rendered at its own pose,
+    # each point lands on its own pixel and must stay visible there, whatever a
+    # neighbour's footprint reaches; the picture is the source's.
+    n = 48
+    K = np.array([[24.0, 0, 23.5], [0, 24.0, 23.5], [0, 0, 1]])
+    inverse = 0.2 * (1 + step * np.arange(n, dtype=np.float32))
+    depth = np.ascontiguousarray(np.broadcast_to(1 / (inverse[:, None] if axis == 0 else inverse[None, :]), (n, n)), np.float32)
+    rgb = np.random.default_rng(1).integers(0, 256, (n, n, 3), dtype=np.uint8)
+    square = forward_warp(rgb, depth, K, K, np.eye(4), footprint="square")
+    adaptive = forward_warp(rgb, depth, K, K, np.eye(4), footprint="adaptive")
+    assert square.visible.all()
+    assert adaptive.visible.all()
+    np.testing.assert_array_equal(adaptive.rgb, rgb)
+    np.testing.assert_allclose(adaptive.depth, depth, rtol=1e-5)

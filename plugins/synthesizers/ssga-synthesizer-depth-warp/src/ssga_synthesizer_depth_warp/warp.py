@@ -775,7 +775,7 @@ def _spread(
         found, back_x[retry], back_y[retry] = _in_footprint(cloud, moved, col[retry], row[retry])
         joins[retry] = found
         retry = retry[~found & (np.take(frames.reach, moved) > 0)]
-    point_depth = np.take(cloud.z, point)
+    point_depth = _surface_depth(cloud, point, back_x, back_y)
     joins &= point_depth * np.float32(1.0 + depth_tolerance) < np.take(depth, asking)
     pixels, point, back_x, back_y = asking[joins], point[joins], back_x[joins], back_y[joins]
     winner[pixels] = point
@@ -784,6 +784,27 @@ def _spread(
     atlas_col, atlas_row = _pixel_grid(cloud.rows[-1], cloud.width)
     _to_reads(back_x, back_y, np.take(frames.interior, point), np.take(atlas_col, point), np.take(atlas_row, point))
     return nearest, _Reads(pixels, back_x, back_y)
+
+
+def _surface_depth(cloud: _Cloud, point: np.ndarray, back_x: np.ndarray, back_y: np.ndarray) -> np.ndarray:
+    """The target depth of ``point``'s surface where a footprint pixel maps back to, ``(back_x, back_y)`` source
+    pixels from it: its inverse depth extended to first order by the steps to its right and lower neighbours.
+
+    A footprint pixel takes this depth rather than the point's own, so that on a surface seen
+    steeply (its depth changing by more than ``depth_tolerance`` from pixel to pixel) a
+    neighbour's footprint is not "nearer" than the pixel's own point, and neither displaces
+    it nor hides it from ``visible``. Only framed points reach here, and a frame exists only
+    where both neighbours are on the point's surface.
+    """
+    z = np.take(cloud.z, point)
+    right = np.take(cloud.z, np.minimum(point + 1, cloud.size))
+    down = np.take(cloud.z, np.minimum(point + cloud.width, cloud.size))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        inverse = 1.0 / z
+        surface = inverse + back_x * (1.0 / right - inverse) + back_y * (1.0 / down - inverse)
+        # Where extending fails (a neighbour unknown, or a grazing surface extended past its
+        # horizon), keep the point's own depth.
+        return np.where(np.isfinite(surface) & (surface > 0), 1.0 / surface, z).astype(np.float32)
 
 
 def _hole_reads(
