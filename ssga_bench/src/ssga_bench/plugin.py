@@ -13,7 +13,7 @@ from ssga_core import hookimpl
 
 @hookimpl
 def ssga_register_commands(app: typer.Typer) -> None:
-    from ssga_bench.cli import config, extract, run, synthesize, workspace
+    from ssga_bench.cli import config, extract, parse, run, synthesize, workspace
 
-    for module in (config, run, workspace, extract, synthesize):
+    for module in (config, run, workspace, extract, synthesize, parse):
         module.register(app)

@@ -1,4 +1,4 @@
-"""The benchmark layer's commands (``run``, ``demo``, ``bench``, ``workspace``, ``config``, ``extract``, ``synthesize``).
+"""The benchmark layer's commands (``run``, ``demo``, ``bench``, ``workspace``, ``config``, ``extract``, ``synthesize``, ``parse``).
 
 Each module has a ``register(app)`` that the plugin hook calls; each command is a thin
 wrapper over a keyword-only library function of :mod:`ssga_bench`.

@@ -1,0 +1,233 @@
+"""Any parser's scene graph of a set of images, drawn and written out to check (``ssga parse``).
+
+The graph is the one the pipeline builds from a parser's regions (:func:`ssga_core.graph.assemble`):
+node 0 the whole image, node ``k + 1`` region ``k``, edges between boxes closer than the
+core's gap, weights 1 and ``1/K``. Each image is parsed at its own size. For an image
+``NAME`` (its path relative to the images' common folder, without the suffix), the
+output folder gets
+
+* ``NAME.graph.png``: the picture (:mod:`ssga_bench.scene_graph_figure`);
+* ``NAME.labels.png``: 16-bit, each pixel's node number (region index + 1), 0 for no
+  region: lossless, ``ids_from_png16`` gives back the parser's label map;
+* ``NAME.regions.json``: per region its node, index, box, area, centroid, category,
+  name, score and weight; the edges; the parser, its preset, its config and its caveat.
+
+An image keeps the channels ssga wrote beside it, so parsers that need more than RGB
+can be looked at too:
+
+* in a workspace folder (``ssga workspace build``), ``rgb/ID.png`` is read with
+  ``depth/ID.png``, ``semantic/ID.png`` and ``instance/ID.png`` where they exist;
+* ``synthetic.png`` of ``ssga synthesize`` is read as a synthetic view, with the
+  ``depth.png`` beside it (0: holes).
+
+Every image is read, and checked to carry what the parser consumes, before any is
+parsed, and no output may replace an input, so a broken or misplaced file stops the
+run with its name before work is done and before anything is written. Files are
+written atomically.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ssga_bench.extract import image_names
+from ssga_bench.io import depth_from_png16, ids_from_png16, ids_to_png16, read_png, writable_folder, write_json, write_png
+from ssga_bench.scene_graph_figure import draw_scene_graph
+from ssga_core.data import VIEW_DATA, Regions, SceneGraph, View
+from ssga_core.errors import InputError
+from ssga_core.geometry import Camera, Pose
+from ssga_core.graph import EDGE_GAP_PX, assemble
+from ssga_core.stages import Parser
+
+PICTURE, LABELS, REGIONS = ".graph.png", ".labels.png", ".regions.json"
+WORKSPACE_CHANNELS = ("depth", "semantic", "instance")
+"""What a workspace folder stores beside ``rgb/`` (``ssga_bench.dataset``), one PNG per view in each."""
+SYNTHETIC_IMAGE, SYNTHETIC_DEPTH = "synthetic.png", "depth.png"
+"""What ``ssga synthesize`` writes (``ssga_bench.synthesize``)."""
+EDGE_RULE = f"boxes within {EDGE_GAP_PX:g} px of each other at 256 px image width (scaled with the width); node 0 to every part"
+
+
+@dataclass(frozen=True)
+class ParsedImage:
+    """One image's outcome: where its files went and the size of its graph."""
+
+    image: Path
+    picture: Path
+    regions: int
+    edges: int
+    """Edges between parts (the whole-image node's edges, one per part, not counted)."""
+    channels: tuple[str, ...]
+
+
+def companion_files(image: Path) -> tuple[dict[str, Path], bool]:
+    """The channel files ssga wrote beside ``image`` (by channel name), and whether it is a synthetic view."""
+    if image.parent.name == "rgb":
+        root = image.parent.parent
+        found = {ch: root / ch / image.name for ch in WORKSPACE_CHANNELS}
+        return {ch: path for ch, path in found.items() if path.is_file()}, False
+    if image.name == SYNTHETIC_IMAGE and (image.parent / SYNTHETIC_DEPTH).is_file():
+        return {"depth": image.parent / SYNTHETIC_DEPTH}, True
+    return {}, False
+
+
+def _read_16bit(path: Path, channel: str, shape: tuple[int, int]) -> np.ndarray:
+    raw = read_png(path, color=False)
+    if raw.dtype != np.uint16 or raw.shape != shape:
+        what = "millimetres" if channel == "depth" else "ids + 1"
+        raise InputError(f"{path}: expected a 16-bit PNG of {what} of the image's {shape[1]} x {shape[0]}, got {raw.dtype} of {raw.shape[1]} x {raw.shape[0]}")
+    return raw
+
+
+def load_view(image: Path, *, companions: bool = True) -> tuple[View, tuple[str, ...]]:
+    """``image`` as a view (a 90 degree pinhole at the origin) with its companion channels; and the channels read."""
+    if not image.is_file():  # said here: OpenCV would print a warning of its own before the error
+        raise InputError(f"{image}: {'a folder, expected an image' if image.is_dir() else 'no such file'}")
+    rgb = read_png(image, color=True)
+    h, w = rgb.shape[:2]
+    files, synthetic = companion_files(image) if companions else ({}, False)
+    channels: dict[str, np.ndarray] = {}
+    for channel, path in files.items():
+        raw = _read_16bit(path, channel, (h, w))
+        channels[channel] = depth_from_png16(raw) if channel == "depth" else ids_from_png16(raw)
+    view = View(rgb=np.ascontiguousarray(rgb), pose=Pose(0.0, 0.0, 0.0), camera=Camera(width=w, height=h), synthetic=synthetic, **channels)
+    return view, ("rgb", *channels)
+
+
+def scene_graph(view: View, regions: Regions) -> SceneGraph:
+    """The graph the pipeline builds from these regions, without features (the core's edge rule and weights)."""
+    return assemble(view.camera, regions.boxes, np.zeros((1 + len(regions), 0), dtype=np.float32))
+
+
+def _finite(values: np.ndarray, digits: int) -> list[float] | None:
+    """A vector as JSON numbers rounded to ``digits``, or None (JSON has no NaN) if any is not finite."""
+    return [round(float(v), digits) for v in values] if np.isfinite(values).all() else None
+
+
+def regions_record(regions: Regions, graph: SceneGraph) -> list[dict[str, Any]]:
+    """Per region: node, index, box, area, centroid, category, name, score, weight (None where the parser gives none)."""
+    areas = np.bincount(regions.labels[regions.labels >= 0], minlength=len(regions))
+    centroids = regions.centroids()
+    return [
+        {
+            "node": k + 1,
+            "index": k,
+            "box": _finite(regions.boxes[k], 3),
+            "area": int(areas[k]),
+            "centroid": _finite(centroids[k], 2),
+            "category": None if regions.categories is None else int(regions.categories[k]),
+            "name": None if regions.names is None else regions.names[k],
+            "score": None if regions.scores is None else round(float(regions.scores[k]), 6),
+            "weight": round(float(graph.weights[k + 1]), 6),
+        }
+        for k in range(len(regions))
+    ]
+
+
+def parser_record(parser: Parser, preset: str | None) -> dict[str, Any]:
+    record: dict[str, Any] = {"name": parser.name, "preset": preset, "config": parser.config.model_dump(mode="json")}
+    caveat = type(parser).caveat(parser.config)
+    if caveat:
+        record["caveat"] = caveat
+    return record
+
+
+def output_names(paths: Sequence[Path]) -> list[str]:
+    """Each image's ``NAME``: its path relative to the images' common folder, without the suffix; one per image."""
+    stems = [str(Path(name).with_suffix("")) for name in image_names(paths)]
+    seen: dict[str, Path] = {}
+    for stem, path in zip(stems, paths):
+        if stem in seen:
+            raise InputError(f"{path}: would write the same {stem}.* files as {seen[stem]}; rename one of them or parse them apart")
+        seen[stem] = path
+    return stems
+
+
+def check_carries(parser: Parser, view: View, image: Path, *, companions: bool) -> None:
+    """Before any parsing: the image carries what the parser consumes (RGB, depth, ids), or a line saying how to give it."""
+    missing = (parser.consumes & VIEW_DATA) - view.available
+    if missing:
+        names = ", ".join(sorted(m.value for m in missing))
+        how = (
+            "an image rgb/ID.png of a workspace folder brings the depth/, semantic/ and instance/ files beside rgb/"
+            if companions
+            else "without --rgb-only, the files ssga wrote beside it are read"
+        )
+        raise InputError(f"{image}: parser {parser.name!r} needs {names}, which this image does not carry; {how}")
+
+
+def _parse(parser: Parser, view: View, image: Path) -> Regions:
+    try:
+        return parser.parse(view)
+    except InputError as exc:
+        raise InputError(f"{image}: {exc}") from None
+
+
+def parse_images(
+    images: Sequence[str | Path],
+    parser: Parser,
+    out: str | Path,
+    *,
+    preset: str | None = None,
+    companions: bool = True,
+    progress: Callable[[str, int, int], None] | None = None,
+) -> list[ParsedImage]:
+    """Parse every image, and write its picture, label PNG and JSON into ``out`` (see the module docstring).
+
+    Args:
+        preset: the parser's preset, if it was made from one (recorded in the JSON).
+        companions: read the channel files ssga wrote beside an image (depth, ids).
+        progress: called with ``("parse", done, total)``.
+    """
+    paths = [Path(p) for p in images]
+    if not paths:
+        raise InputError("ssga parse: no image given")
+    out = Path(out)
+    names = output_names(paths)
+    inputs = {p.resolve() for p in paths}
+    for path in paths:
+        inputs.update(f.resolve() for f in (companion_files(path)[0] if companions else {}).values())
+    for name, path in zip(names, paths):
+        for suffix in (PICTURE, LABELS, REGIONS):
+            if (out / f"{name}{suffix}").resolve() in inputs:
+                raise InputError(f"{out / f'{name}{suffix}'}: is an input; the output of {path} would replace it; choose another --out")
+    for path in paths:
+        check_carries(parser, load_view(path, companions=companions)[0], path, companions=companions)
+    writable_folder(out)
+    record = parser_record(parser, preset)
+    title = parser.name + (f" ({preset})" if preset else "")
+    parsed: list[ParsedImage] = []
+    for n, (path, name) in enumerate(zip(paths, names), 1):
+        view, channels = load_view(path, companions=companions)
+        regions = _parse(parser, view, path)
+        graph = scene_graph(view, regions)
+        picture = out / f"{name}{PICTURE}"
+        write_png(out / f"{name}{LABELS}", ids_to_png16(regions.labels, f"{path}: region labels"))
+        write_json(
+            out / f"{name}{REGIONS}",
+            {
+                "image": str(path),
+                "size": [view.camera.width, view.camera.height],
+                "channels": list(channels),
+                "synthetic": view.synthetic,
+                "parser": record,
+                "picture": Path(f"{name}{PICTURE}").name,
+                "labels": Path(f"{name}{LABELS}").name,
+                "labels_encoding": "16-bit PNG: node number (region index + 1), 0 for no region",
+                "whole_image": {"node": SceneGraph.WHOLE_IMAGE, "box": graph.boxes[SceneGraph.WHOLE_IMAGE].tolist(), "weight": float(graph.weights[SceneGraph.WHOLE_IMAGE])},
+                "regions": regions_record(regions, graph),
+                "edges": graph.edges.tolist(),
+                "edge_rule": EDGE_RULE,
+            },
+        )
+        write_png(picture, draw_scene_graph(view.rgb, regions, graph, title=title))
+        between = int(np.all(graph.edges != SceneGraph.WHOLE_IMAGE, axis=1).sum())
+        parsed.append(ParsedImage(path, picture, len(regions), between, channels))
+        if progress:
+            progress("parse", n, len(paths))
+    return parsed
+
