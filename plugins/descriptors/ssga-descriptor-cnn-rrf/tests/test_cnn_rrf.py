@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from ssga_descriptor_cnn_rrf import plugin as cnn_plugin
+from ssga_descriptor_cnn_rrf import training as cnn_training
 from ssga_descriptor_cnn_rrf.plugin import CnnRrf, CnnRrfConfig
 from ssga_descriptor_cnn_rrf.training import expand_box
 from ssga_descriptor_cnn_rrf.vgg import VGG
@@ -177,7 +177,7 @@ def test_a_second_fit_loads_the_cached_classifier(tmp_path, monkeypatch):
     def no_training(*args, **kwargs):
         raise AssertionError("trained again")
 
-    monkeypatch.setattr(cnn_plugin, "train", no_training)
+    monkeypatch.setattr(cnn_training, "train", no_training)
     again = tiny(tmp_path, steps=5, device="cpu", describe_batch=2)  # runtime fields: same key
     again.fit(views, labels)
     assert again.training is None and again.cache_file == first.cache_file
@@ -272,7 +272,7 @@ def test_a_file_with_the_place_head_is_used_as_is(tmp_path, monkeypatch):
     state = torchvision_vgg16_state(width=1 / 16, hidden=16, classes=4)
     path = tmp_path / "places.pt"
     path.write_bytes(checkpoint_bytes({"state_dict": state}))
-    monkeypatch.setattr(cnn_plugin, "train", lambda *a, **k: pytest.fail("a finished classifier was trained"))
+    monkeypatch.setattr(cnn_training, "train", lambda *a, **k: pytest.fail("a finished classifier was trained"))
     d = tiny(tmp_path, **FILE_NET, weights=str(path), steps=50)
     views, labels = colour_set(per_class=1)
     d.fit(views, labels)
@@ -281,7 +281,7 @@ def test_a_file_with_the_place_head_is_used_as_is(tmp_path, monkeypatch):
 
 
 def test_a_cached_classifier_is_a_checkpoint_for_weights(trained, tmp_path, monkeypatch):
-    monkeypatch.setattr(cnn_plugin, "train", lambda *a, **k: pytest.fail("a finished classifier was trained"))
+    monkeypatch.setattr(cnn_training, "train", lambda *a, **k: pytest.fail("a finished classifier was trained"))
     d = tiny(tmp_path, steps=40, weights=str(trained.cache_file))
     views, labels = colour_set()
     d.fit(views, labels)
@@ -350,7 +350,7 @@ def test_random_weights_are_labelled_and_scratch_is_not(ssga_installed_registry)
 
 
 def test_random_weights_are_untrained_but_seeded(tmp_path, monkeypatch):
-    monkeypatch.setattr(cnn_plugin, "train", lambda *a, **k: pytest.fail("random weights were trained"))
+    monkeypatch.setattr(cnn_training, "train", lambda *a, **k: pytest.fail("random weights were trained"))
     views, labels = colour_set(per_class=1)
     a, b = tiny(tmp_path, weights="random"), tiny(tmp_path, weights="random")
     a.fit(views, labels)

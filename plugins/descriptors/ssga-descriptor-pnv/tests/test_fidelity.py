@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 import torch
 from torch import nn
-from ssga_descriptor_pnv.model import LIGHT_WIDTHS, VGG16_WIDTHS, patch_grid
+from ssga_descriptor_pnv.layout import LIGHT_WIDTHS, VGG16_WIDTHS, patch_grid
 from ssga_descriptor_pnv.plugin import Pnv, PnvConfig
 
 from ssga_bench import checkpoint_bytes

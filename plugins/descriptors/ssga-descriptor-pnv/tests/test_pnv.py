@@ -9,7 +9,8 @@ import pickle
 import numpy as np
 import pytest
 import torch
-from ssga_descriptor_pnv.model import LIGHT_WIDTHS, VGG16_WIDTHS, PatchNetVLAD
+from ssga_descriptor_pnv.layout import LIGHT_WIDTHS, VGG16_WIDTHS
+from ssga_descriptor_pnv.model import PatchNetVLAD
 from ssga_descriptor_pnv.plugin import LIGHT_WEIGHTS, WEIGHTS_DIR, Pnv, PnvConfig
 
 from ssga_bench import BoWConfig, checkpoint_bytes, validate_experiment

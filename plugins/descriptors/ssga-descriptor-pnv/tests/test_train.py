@@ -9,7 +9,8 @@ import pytest
 import torch
 from ssga_descriptor_pnv import train
 from ssga_descriptor_pnv.homes import relations
-from ssga_descriptor_pnv.model import LIGHT_WIDTHS, PatchNetVLAD
+from ssga_descriptor_pnv.layout import LIGHT_WIDTHS
+from ssga_descriptor_pnv.model import PatchNetVLAD
 from ssga_descriptor_pnv.plugin import Pnv, PnvConfig
 
 from ssga_core import InputError

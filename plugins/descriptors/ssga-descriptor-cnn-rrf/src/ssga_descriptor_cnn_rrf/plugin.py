@@ -28,10 +28,9 @@ import os
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
-import torch
 from pydantic import Field
 
 from ssga_bench import (
@@ -44,18 +43,13 @@ from ssga_bench import (
     load_strict,
 )
 from ssga_core import CheckpointError, Descriptor, InputError, RegionDescriptor, Regions, View, hookimpl, reciprocal_ranks
-from ssga_descriptor_cnn_rrf.training import (
-    Augmentation,
-    TrainingResult,
-    crop_batch,
-    evaluate,
-    expand_box,
-    file_digest,
-    stderr_log,
-    train,
-    training_key,
-)
-from ssga_descriptor_cnn_rrf.vgg import VGG, Layout, normalise
+from ssga_descriptor_cnn_rrf.layout import Layout
+
+if TYPE_CHECKING:  # torch, the network and its training load when a classifier is built, not when the plugin registers
+    import torch
+
+    from ssga_descriptor_cnn_rrf.training import Augmentation, TrainingResult
+    from ssga_descriptor_cnn_rrf.vgg import VGG
 
 HERE = Path(__file__).parent
 SCRATCH = "scratch"
@@ -186,6 +180,10 @@ class CnnRrf(Learned, RegionDescriptor):
             raise InputError(f"{self.who}: fit got {len(views)} views but {len(labels)} labels")
         for view in views:
             self._require(view)
+        import torch
+
+        from ssga_descriptor_cnn_rrf.training import stderr_log, train, training_key
+
         cfg = self.config
         classes = np.unique(np.asarray(labels, dtype=np.int64))
         targets = np.searchsorted(classes, labels)
@@ -225,6 +223,10 @@ class CnnRrf(Learned, RegionDescriptor):
 
     def accuracy(self, views: Sequence[View], labels: Sequence[int]) -> float:
         """Top-1 accuracy of the fitted classifier on whole ``views`` (labels outside :attr:`classes` count as wrong)."""
+        import torch
+
+        from ssga_descriptor_cnn_rrf.training import evaluate
+
         net = self._fitted()
         index = {int(c): i for i, c in enumerate(self.classes)}
         targets = np.array([index.get(int(c), -1) for c in labels])
@@ -234,6 +236,10 @@ class CnnRrf(Learned, RegionDescriptor):
 
     def _start(self, classes: np.ndarray) -> tuple[VGG, bool, str]:
         """The network to start from, whether ``fit`` trains it, and a digest of where it came from."""
+        import torch
+
+        from ssga_descriptor_cnn_rrf.training import file_digest
+
         cfg = self.config
         n = len(classes)
         if cfg.weights in (SCRATCH, "random"):
@@ -258,6 +264,8 @@ class CnnRrf(Learned, RegionDescriptor):
         return net, True, file_digest(path)
 
     def _network(self, n: int) -> VGG:
+        from ssga_descriptor_cnn_rrf.vgg import VGG
+
         cfg = self.config
         return VGG(cfg.arch, n, width=cfg.width, hidden=cfg.hidden, pool=cfg.pool, batch_norm=cfg.batch_norm, dropout=cfg.dropout)
 
@@ -270,12 +278,16 @@ class CnnRrf(Learned, RegionDescriptor):
         try:
             return self.weights_file(HERE / "weights")
         except CheckpointError as exc:
+            import torch
+
             hub = Path(torch.hub.get_dir()) / "checkpoints" / self.config.weights
             if not Path(self.config.weights).is_absolute() and hub.is_file():
                 return hub
             raise CheckpointError(f"{exc}; not in torch's hub cache ({hub.parent}) either") from None
 
     def _augmentation(self) -> Augmentation:
+        from ssga_descriptor_cnn_rrf.training import Augmentation
+
         cfg = self.config
         return Augmentation(
             size=cfg.input_size, region_crops=cfg.region_crops, rotation=cfg.rotation, colour=cfg.colour,
@@ -303,6 +315,8 @@ class CnnRrf(Learned, RegionDescriptor):
         return True
 
     def _save(self, net: VGG, path: Path, classes: np.ndarray) -> None:
+        import torch
+
         assert self.training is not None
         state = {k: v.detach().cpu() for k, v in net.state_dict().items()}
         record = {
@@ -321,14 +335,18 @@ class CnnRrf(Learned, RegionDescriptor):
             raise NotFittedError(f"{self.who} is not fitted: call fit(views, labels) first")
         return self._net
 
-    @torch.no_grad()
     def scores(self, view: View, boxes: Sequence[tuple[int, int, int, int]]) -> np.ndarray:
         """``(len(boxes), C)`` class logits of the crops ``(x0, y0, x1, y1)`` of ``view``, in :attr:`classes` order."""
+        import torch
+
+        from ssga_descriptor_cnn_rrf.training import crop_batch
+        from ssga_descriptor_cnn_rrf.vgg import normalise
+
         net = self._fitted()
         cfg = self.config
         image = torch.from_numpy(np.ascontiguousarray(view.rgb)).permute(2, 0, 1).to(self.device)
         out = []
-        with torch_threads(cfg.threads):
+        with torch.no_grad(), torch_threads(cfg.threads):
             for s in range(0, len(boxes), cfg.describe_batch):
                 x = normalise(crop_batch(image, boxes[s : s + cfg.describe_batch], cfg.input_size))
                 out.append(net(x.contiguous(memory_format=torch.channels_last)).float().cpu())
@@ -336,6 +354,8 @@ class CnnRrf(Learned, RegionDescriptor):
 
     def crops(self, view: View, regions: Regions | None) -> list[tuple[int, int, int, int]]:
         """The crops ``(x0, y0, x1, y1)`` that describe ``view``: the whole image, then each region's grown box."""
+        from ssga_descriptor_cnn_rrf.training import expand_box
+
         h, w = view.camera.shape
         boxes = [(0, 0, w, h)]
         if regions is not None:
@@ -357,6 +377,8 @@ class CnnRrf(Learned, RegionDescriptor):
 @contextmanager
 def torch_threads(count: int) -> Iterator[None]:
     """Torch's intra-op threads set to ``count`` (0: left as they are) for the block."""
+    import torch
+
     before = torch.get_num_threads()
     if count:
         torch.set_num_threads(count)

@@ -14,17 +14,10 @@ networks of the same family and the same key names.
 
 from __future__ import annotations
 
-from typing import Literal
-
 import torch
 from torch import nn
 
-LAYOUTS: dict[str, tuple[int | str, ...]] = {
-    # torchvision's cfgs "A" (VGG11) and "D" (VGG16): output channels of each 3 x 3 conv, "M" a 2 x 2 max-pool.
-    "vgg11": (64, "M", 128, "M", 256, 256, "M", 512, 512, "M", 512, 512, "M"),
-    "vgg16": (64, 64, "M", 128, 128, "M", 256, 256, 256, "M", 512, 512, 512, "M", 512, 512, 512, "M"),
-}
-Layout = Literal["vgg11", "vgg16"]
+from ssga_descriptor_cnn_rrf.layout import LAYOUTS, Layout
 
 IMAGENET_MEAN = (0.485, 0.456, 0.406)
 IMAGENET_STD = (0.229, 0.224, 0.225)

@@ -6,7 +6,7 @@ the ``patchnetvlad`` package), so the released checkpoints load strictly:
 * ``encoder``: torchvision's ``vgg16().features[:-2]``, i.e. conv1_1 to conv5_3 *before*
   its ReLU (and without the last max-pool); stride 16. Keys
   ``encoder.{0,2,5,7,10,12,14,17,19,21,24,26,28}.{weight,bias}``. Built here without
-  torchvision, index for index. :data:`LIGHT_WIDTHS` is the same network, 4x narrower.
+  torchvision, index for index. :data:`.layout.LIGHT_WIDTHS` is the same network, 4x narrower.
 * ``pool``: NetVLAD (``pool.centroids`` ``(K, D)``, ``pool.conv.weight`` ``(K, D, 1, 1)``,
   no bias). The encoder's descriptors are L2-normalised, soft-assigned to the K
   clusters by the 1 x 1 conv and a softmax, and their residuals to the centroids are
@@ -21,6 +21,9 @@ The official code sums each window over an integral image; the mean over the win
 normalisations remove (REFERENCE §1.2; ``tests/test_fidelity.py`` compares with the
 official package). The pool expands the residuals one cluster at a time, so the peak
 memory is ``N * D * H * W`` floats per cluster, not ``K`` times that.
+
+The block widths, the conv5_3 grid and the patch centres (:func:`.layout.patch_grid`)
+live in :mod:`.layout`, which the plugin reads without importing torch.
 """
 
 from __future__ import annotations
@@ -32,21 +35,10 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-VGG16_WIDTHS: tuple[int, int, int, int, int] = (64, 128, 256, 512, 512)
-"""Output channels of VGG16's five conv blocks (torchvision's ``vgg16``)."""
-
-LIGHT_WIDTHS: tuple[int, int, int, int, int] = (16, 32, 64, 128, 128)
-"""The light network: VGG16 with every block 4x narrower (about 1/16 of the compute)."""
+from ssga_descriptor_pnv.layout import VGG16_WIDTHS
 
 _BLOCK_DEPTHS = (2, 2, 3, 3, 3)
 """Convolutions per VGG16 block."""
-
-STRIDE = 16
-"""Pixels between neighbouring conv5_3 cells (four 2 x 2 max-pools)."""
-RECEPTIVE_FIELD = 196
-"""Side of a conv5_3 cell's receptive field, pixels (PNV's ``calc_receptive_boxes``)."""
-PADDING = 90
-"""How far the first cell's receptive field starts before pixel 0 (ditto)."""
 
 RANDOM_ALPHA = 10.0
 """Assignment sharpness of a network's random initialisation (k-means initialisation computes its own)."""
@@ -137,7 +129,7 @@ class PatchNetVLAD(nn.Module):
     """``encoder`` -> ``pool`` -> ``WPCA``, under the official key names.
 
     Args:
-        widths: the encoder's five block widths (:data:`VGG16_WIDTHS` or :data:`LIGHT_WIDTHS`).
+        widths: the encoder's five block widths (:data:`.layout.VGG16_WIDTHS` or :data:`.layout.LIGHT_WIDTHS`).
         clusters: K, NetVLAD's number of clusters (the released models: read it from the file).
         num_pcs: WPCA output dimension (the local and global descriptors' length).
     """
@@ -175,29 +167,6 @@ class PatchNetVLAD(nn.Module):
     def global_vlad(self, images: torch.Tensor) -> torch.Tensor:
         """``(N, K * D)`` whole-image NetVLAD before WPCA (what training compares)."""
         return self.pool(self.encoder(images), local=False)[1]
-
-
-def patch_grid(feature_shape: tuple[int, int], patch_size: int = 5, stride: int = 1) -> np.ndarray:
-    """``(P, 2)`` float32 ``(u, v)`` pixel centres of the patches of a ``(H, W)`` conv5_3 map, row by row.
-
-    A conv5_3 cell ``c`` sees pixels ``STRIDE * c - PADDING`` to that ``+ RECEPTIVE_FIELD - 1``,
-    centred at ``16 c + 7.5``; a patch's centre is the middle of its first and last cells'
-    (PNV's ``calc_keypoint_centers_from_patches``, kept as floats). Pixel ``i`` covers
-    ``[i - 0.5, i + 0.5]``. At 256 x 256: 16 x 16 cells, 12 x 12 patches of 5, centred at
-    ``39.5 + 16 j`` px.
-    """
-    rows = _centres(feature_shape[0], patch_size, stride)
-    cols = _centres(feature_shape[1], patch_size, stride)
-    uu, vv = np.meshgrid(cols, rows)
-    return np.stack([uu.ravel(), vv.ravel()], axis=-1).astype(np.float32)
-
-
-def _centres(cells: int, patch_size: int, stride: int) -> np.ndarray:
-    first = np.arange(0, cells - patch_size + 1, stride, dtype=np.float64)
-    half_rf = (RECEPTIVE_FIELD - 1) / 2.0
-    start = STRIDE * first - PADDING + half_rf
-    end = STRIDE * (first + patch_size - 1) - PADDING + half_rf
-    return (start + end) / 2.0
 
 
 def preprocess(rgb: np.ndarray, size: int | None) -> torch.Tensor:

@@ -17,10 +17,9 @@ from __future__ import annotations
 
 import threading
 from pathlib import Path
-from typing import Any, Literal
+from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
-import torch
 from pydantic import Field, model_validator
 
 from ssga_core import Descriptor, InputError, LocalFeatures, View, hookimpl
@@ -33,7 +32,10 @@ from ssga_bench import (
     load_checkpoint,
     load_strict,
 )
-from ssga_descriptor_pnv.model import LIGHT_WIDTHS, STRIDE, VGG16_WIDTHS, PatchNetVLAD, patch_grid, preprocess
+from ssga_descriptor_pnv.layout import LIGHT_WIDTHS, STRIDE, VGG16_WIDTHS, patch_grid
+
+if TYPE_CHECKING:  # torch and the network load when a descriptor is made, not when the plugin registers
+    from ssga_descriptor_pnv.model import PatchNetVLAD
 
 WEIGHTS_DIR = Path(__file__).parent / "weights"
 """Where relative ``weights`` are looked up first (then the working directory)."""
@@ -125,12 +127,20 @@ class Pnv(Learned, BoWDescriptor):
             return _NETWORKS[key]
 
     def _random(self) -> PatchNetVLAD:
+        import torch
+
+        from ssga_descriptor_pnv.model import PatchNetVLAD
+
         cfg: PnvConfig = self.config  # type: ignore[assignment]
         with torch.random.fork_rng(devices=[]):
             torch.manual_seed(RANDOM_SEED)
             return PatchNetVLAD(NETWORKS[cfg.network], RANDOM_CLUSTERS, cfg.num_pcs, cfg.patch_size, cfg.stride)
 
     def _from_file(self, path: Path) -> PatchNetVLAD:
+        import torch
+
+        from ssga_descriptor_pnv.model import PatchNetVLAD
+
         cfg: PnvConfig = self.config  # type: ignore[assignment]
         expected = f"a Patch-NetVLAD checkpoint ({{'state_dict': encoder.*, pool.*, WPCA.*}}) of the {cfg.network!r} network with num_pcs = {cfg.num_pcs}"
         checkpoint = load_checkpoint(path, self.who, expected)
@@ -151,6 +161,10 @@ class Pnv(Learned, BoWDescriptor):
         self.net = self._load()
 
     def _extract(self, view: View) -> LocalFeatures:
+        import torch
+
+        from ssga_descriptor_pnv.model import preprocess
+
         cfg: PnvConfig = self.config  # type: ignore[assignment]
         h, w = view.camera.shape
         size = cfg.image_size

@@ -52,7 +52,8 @@ from ssga_bench import TrainingRun, atomic_write_bytes, checkpoint_bytes, load_c
 from ssga_bench import training_log as log
 from ssga_descriptor_pnv.evaluate import HeldOut, evaluate, render_heldout
 from ssga_descriptor_pnv.homes import HOME, Places, relations, render_places
-from ssga_descriptor_pnv.model import LIGHT_WIDTHS, PatchNetVLAD, preprocess
+from ssga_descriptor_pnv.layout import LIGHT_WIDTHS
+from ssga_descriptor_pnv.model import PatchNetVLAD, preprocess
 
 EXPORT_NAME = "pnv-light"
 

@@ -21,25 +21,18 @@ import dataclasses
 import threading
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any, Literal
+from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
-import torch
 from pydantic import Field
 
 from ssga_bench import RANDOM_WEIGHTS, Learned, LearnedConfig, load_checkpoint, load_strict
 from ssga_core import CheckpointError, Data, InputError, Pose, Synthesis, Synthesizer, View, hookimpl
-from ssga_synthesizer_synsin.model import (
-    LightOptions,
-    RenderOptions,
-    SynSin,
-    SynSinLight,
-    normalise,
-    official_state_dict,
-    options_from_opts,
-    to_uint8,
-)
-from ssga_synthesizer_synsin.splat import splat
+
+if TYPE_CHECKING:  # torch and the networks load when a synthesizer is made, not when the plugin registers
+    import torch
+
+    from ssga_synthesizer_synsin.model import RenderOptions
 
 WEIGHTS_DIR = Path(__file__).parent / "weights"
 """Where relative ``weights`` are looked up first (then the working directory)."""
@@ -141,12 +134,20 @@ class SynSinSynthesizer(Learned, Synthesizer):
             return _NETWORKS[key]
 
     def _random(self) -> torch.nn.Module:
+        import torch
+
+        from ssga_synthesizer_synsin.model import SynSin, SynSinLight
+
         cfg: SynSinConfig = self.config  # type: ignore[assignment]
         with torch.random.fork_rng(devices=[]):
             torch.manual_seed(RANDOM_SEED)
             return SynSinLight() if cfg.network == "light" else SynSin()
 
     def _from_file(self, path: Path) -> torch.nn.Module:
+        import torch
+
+        from ssga_synthesizer_synsin.model import LightOptions, SynSin, SynSinLight, official_state_dict, options_from_opts
+
         cfg: SynSinConfig = self.config  # type: ignore[assignment]
         if cfg.network == "light":
             expected = "a light SynSin checkpoint ({'state_dict': pts_regressor.*, encoder.*, projector.*, 'opts'})"
@@ -190,6 +191,11 @@ class SynSinSynthesizer(Learned, Synthesizer):
 
     def _synthesize_from(self, views: Sequence[View], target: Pose) -> list[Synthesis]:
         """All the views' points in one z-buffer and one refinement, seen by the first view's camera at ``target``."""
+        import torch
+
+        from ssga_synthesizer_synsin.model import normalise, to_uint8
+        from ssga_synthesizer_synsin.splat import splat
+
         cfg: SynSinConfig = self.config  # type: ignore[assignment]
         camera = views[0].camera
         h, w = camera.shape
@@ -229,6 +235,10 @@ class SynSinSynthesizer(Learned, Synthesizer):
 
     def predict_depth(self, view: View) -> np.ndarray:
         """``(H, W)`` float32 metric depth the network predicts for ``view``."""
+        import torch
+
+        from ssga_synthesizer_synsin.model import normalise
+
         with torch.inference_mode():
             return self.net.depth(normalise(view.rgb).to(self.device))[0, 0].float().cpu().numpy()  # type: ignore[operator]
 
