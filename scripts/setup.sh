@@ -17,7 +17,9 @@ VENV=${VENV:-.venv}
 PYTHON=${PYTHON:-python3}
 TORCH_SPEC=${TORCH_SPEC:-torch==2.13.0}
 
-packages=(ssga_core ssga_bench plugins/*/*/ examples/*/)
+packages=(ssga_core ssga_bench plugins/*/*/)
+# The examples that are packages (examples/hm3d holds configs only).
+for example in examples/*/pyproject.toml; do packages+=("${example%pyproject.toml}"); done
 stamp="$VENV/.ssga-installed"
 
 # Re-install only when a package's metadata (dependencies, entry points) or this script changed.

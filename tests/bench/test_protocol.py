@@ -9,7 +9,7 @@ import pytest
 import shapely
 
 from ssga_core import Camera, InputError
-from ssga_bench.protocol import Grid, Protocol, ProtocolConfig, level_of
+from ssga_bench.protocol import FULL_REACH, Grid, Protocol, ProtocolConfig, level_of, suggest
 from ssga_bench.visibility import view_overlap
 from ssga_bench.workspace import FloorPlan
 
@@ -114,3 +114,53 @@ def test_landmark_levels_can_be_chosen():
     config = ProtocolConfig(cells=2, test_per_class=2, seed=2, level_reference="landmark")
     plan = Protocol(two_rooms(), Camera(), config).plan("x")
     assert all(s.level == level_of(s.vo_landmark) for s in plan.split("test"))
+
+
+def narrow_room() -> FloorPlan:
+    """A 6 x 3 m room whose free floor ends 0.25 m from its walls: cells of 1 m in rows at y = 0.5,
+    1.5 and 2.5, the first and last 0.5 m from a wall."""
+    occluders = shapely.box(-0.1, -0.1, 6.1, 3.1).difference(shapely.box(0, 0, 6, 3))
+    return FloorPlan(free=shapely.box(0.25, 0.25, 5.75, 2.75), occluders=occluders)
+
+
+def cell_at(protocol: Protocol, x: float, y: float) -> int:
+    return int(np.flatnonzero(np.all(np.isclose(protocol.centroids, [x, y]), axis=1))[0])
+
+
+def test_a_canonical_viewpoint_stands_at_the_farthest_free_step():
+    protocol = Protocol(narrow_room(), Camera(), ProtocolConfig(cell_size=1.0, orientations=4))
+    cell = cell_at(protocol, 2.5, 0.5)  # 0.5 m from the wall at y = 0
+    found = protocol.canonical_viewpoints(cell, 1.5)
+    steps = [step for _, step in found]  # type: ignore[misc]
+    # Looking along +x or -x the full metre behind is free; looking away from the wall (+y) the
+    # camera must stand between the wall and the centroid: free floor starts 0.25 m from the wall,
+    # so 0.5 m and 0.25 m behind (y = 0 and 0.25) are not free, 0.125 m (y = 0.375) is.
+    assert steps == [1.0, 0.125, 1.0, 1.0]
+    pose, _ = found[1]  # type: ignore[misc]
+    assert (pose.x, pose.y, pose.yaw) == pytest.approx((2.5, 0.375, math.pi / 2))
+
+
+def test_cells_that_need_near_viewpoints_are_drawn_only_when_too_few_others():
+    protocol = Protocol(narrow_room(), Camera(), ProtocolConfig(cell_size=1.0, cells=2, test_per_class=1))
+    cells = protocol.free_cells()
+    full = [c for c in cells if min(step for _, step in protocol.canonical_viewpoints(c, 1.5)) >= FULL_REACH]  # type: ignore[misc]
+    near = [c for c in protocol.eligible_cells(cells, 1.5) if c not in full]
+    assert full and near, "the room has both kinds"
+    assert all(protocol.centroids[c][1] == 1.5 for c in full), "only the middle row has room behind every heading"
+    for wanted in (len(full), len(full) + 1):
+        config = ProtocolConfig(cell_size=1.0, cells=wanted, test_per_class=1)
+        chosen = set(Protocol(narrow_room(), Camera(), config).plan("narrow").cells)
+        assert set(full) <= chosen and len(chosen - set(full)) == wanted - len(full)
+
+
+def test_suggestions_try_the_configured_values_first_and_count_true():
+    config = ProtocolConfig(cell_size=2.0, cells=6)
+    suggestion = suggest(narrow_room(), Camera(), config)
+    first = suggestion.fits[0]
+    assert (first.cell_size, first.viewpoint_distance) == (2.0, 1.0) and not first.enough
+    for fit in suggestion.fits:
+        protocol = Protocol(narrow_room(), Camera(), config.model_copy(update={"cell_size": fit.cell_size, "viewpoint_distance": fit.viewpoint_distance}))
+        assert fit.cells == len(protocol.eligible_cells(protocol.free_cells(), 1.5)) and fit.complete
+    assert suggestion.best is not None and suggestion.best.cell_size < 2.0
+    with pytest.raises(InputError, match=r"only \d of its \d+ cells of 2.0 m .* 6 wanted; protocol.cell_size = 1.5 gives at least 6, or lower protocol.cells to 3"):
+        Protocol(narrow_room(), Camera(), config).plan("narrow")

@@ -14,6 +14,7 @@ _EXPORTS = {
     "FloorPlan": "ssga_bench.workspace",
     "Workspace": "ssga_bench.workspace",
     "CapturedWorkspace": "ssga_bench.workspace",
+    "grid_polygons": "ssga_bench.workspace",
     # the bag-of-words kit of local descriptors (paper §3.1.2)
     "BagOfWords": "ssga_bench.bow",
     "BoWConfig": "ssga_bench.bow",
@@ -24,6 +25,7 @@ _EXPORTS = {
     "Learned": "ssga_bench.learned",
     "LearnedConfig": "ssga_bench.learned",
     "RANDOM_WEIGHTS": "ssga_bench.learned",
+    "find_weights": "ssga_bench.learned",
     "load_checkpoint": "ssga_bench.learned",
     "load_strict": "ssga_bench.learned",
     "checkpoint_bytes": "ssga_bench.learned",

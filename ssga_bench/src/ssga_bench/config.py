@@ -225,6 +225,8 @@ def validate_experiment(data: dict[str, Any], registry: Registry, *, source: str
         else packaged.stage(FuserRef.model_validate(defaults["fuser"]), "fuser", ("defaults.toml", "fuser"))
     )
     resolver.problems.extend(packaged.problems)
+    if workspace is not None:
+        resolver.problems.extend(f"workspace.{problem}" for problem in workspace.cls.missing(workspace.config))
     variants = resolver.variants(config, available=workspace.cls.carries(workspace.config) if workspace else None)
     resolver.raise_problems(source)
     assert workspace is not None and fuser is not None

@@ -91,7 +91,11 @@ def resolve_device(choice: str, who: str = "stage") -> torch.device:
     return torch.device(choice)
 
 
-def find_weights(value: str, packaged: Path | None, who: str) -> Path:
+def find_weights(value: str, packaged: Path | None, who: str, field: str = "weights", expected: str = "a checkpoint file") -> Path:
+    """The file ``value`` names: itself if absolute, else under ``packaged`` (when given), then the working directory.
+
+    A missing file is a :class:`MissingWeightsError` naming the config ``field`` and what it should hold.
+    """
     if value == RANDOM_WEIGHTS:
         raise ValueError("random weights have no file")
     path = Path(value).expanduser()
@@ -100,7 +104,7 @@ def find_weights(value: str, packaged: Path | None, who: str) -> Path:
         if candidate.is_file():
             return candidate
     where = " or ".join(str(c) for c in candidates)
-    raise MissingWeightsError(f"{who}: config field 'weights' = {value!r}: no such file (looked for {where}); set 'weights' to a checkpoint file")
+    raise MissingWeightsError(f"{who}: config field {field!r} = {value!r}: no such file (looked for {where}); set {field!r} to {expected}")
 
 
 def load_checkpoint(path: Path, who: str, expected: str = "a torch checkpoint") -> Any:

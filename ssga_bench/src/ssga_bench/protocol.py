@@ -13,13 +13,21 @@ Definitions (the paper leaves the last three open; these are ssga's):
   heading: class ``k`` covers headings within half a bin of ``k * 360 / 12`` degrees.
   ``cells`` (10) cells are drawn at random, giving 120 classes, numbered
   ``cell_rank * orientations + orientation``.
-* **Training viewpoints.** The *canonical viewpoint* of a class stands
-  ``viewpoint_distance`` (1 m) behind the cell centroid along the class heading and
-  looks at the centroid (nearer or farther if that spot is not free), so it belongs
-  to that class. A cell is eligible only if all its classes have one. Each cell gets
+* **Training viewpoints.** The *canonical viewpoint* of a class looks at the cell
+  centroid along the class heading from behind it, at the farthest free spot up to
+  ``viewpoint_distance`` (1 m): the first of 100%, 75%, 50%, 25% and 12.5% of it
+  (:data:`VIEWPOINT_STEPS`) that is free floor and from which the view belongs to the
+  class. A cell is eligible only if all its classes have one. Cells whose viewpoints
+  all stand at least half the distance back are drawn first; cells that need a nearer
+  one (a small room, a cell by a wall) only when those are too few, so a floor plan
+  with room for the full distance gets the protocol it always had. Each cell gets
   exactly one real training image, at the canonical viewpoint of one class drawn at
   random; the canonical viewpoints of its other classes are the *targets* the
   synthesizer renders the real image to.
+* **When a floor plan has too few eligible cells**, the error names the values of
+  ``cell_size`` and ``viewpoint_distance`` that would give enough
+  (:func:`suggest`; ``ssga workspace build --suggest`` shows them all, with the
+  ``test_radius`` the test views need).
 * **Test views** are sampled independently: a position uniform in the free floor
   within ``test_radius`` of a selected cell's centroid and a uniform heading, kept
   if it belongs to a selected class that still needs test views; ``test_per_class``
@@ -50,6 +58,25 @@ from ssga_bench.visibility import cast_rays, occluder_segments, sees, view_overl
 from ssga_bench.workspace import FloorPlan
 
 Split = Literal["train", "target", "test", "val"]
+
+VIEWPOINT_STEPS = (1.0, 0.75, 0.5, 0.25, 0.125)
+"""Shares of ``viewpoint_distance`` a canonical viewpoint may stand behind its cell's
+centroid, farthest first. The first three are the distances the protocol has always
+tried (it also tried 1.25 and 1.5 times, which no cell drawn in the demo's or the
+bench's homes used), so the viewpoints of a plan they fit stay where they were. The
+quarter and the eighth let a 1 m cell whose centroid is 0.4 m from a wall (free floor
+ends 0.25 m from it) look away from the wall: in furnished rooms of 12 m^2 they took
+the 1 m cells seen from all 12 headings from 2.4 to 5.9 on average
+(``scripts/protocol_cells.py``)."""
+
+FULL_REACH = 0.5
+"""Cells whose canonical viewpoints all stand at least this share of
+``viewpoint_distance`` back are drawn before cells that need nearer ones."""
+
+CELL_SIZES = (0.5, 0.75, 1.0, 1.5, 2.0, 3.0)
+VIEWPOINT_DISTANCES = (0.25, 0.5, 0.75, 1.0, 1.5, 2.0)
+TEST_RADII = (1.0, 1.5, 2.0, 3.0, 4.0, 6.0)
+"""Values :func:`suggest` tries besides the configured ones (metres)."""
 
 
 class ProtocolConfig(BaseModel):
@@ -82,7 +109,11 @@ class ProtocolConfig(BaseModel):
         default=3.0, gt=0.0, le=100.0, description="Test cameras stand within this distance of their cell's centroid, metres."
     )
     viewpoint_distance: float = Field(
-        default=1.0, gt=0.0, le=100.0, description="Canonical viewpoints stand this far behind the cell centroid, metres."
+        default=1.0,
+        gt=0.0,
+        le=100.0,
+        description="Canonical viewpoints stand this far behind the cell centroid, or nearer (down to an eighth of it) where "
+        "that spot is not free, metres.",
     )
     max_range: float = Field(default=10.0, gt=0.0, le=1000.0, description="Visibility cones end here, metres.")
     rays: int = Field(default=121, ge=3, le=10_000, description="Rays cast per visibility cone.")
@@ -189,6 +220,7 @@ class Protocol:
         self.config = config or ProtocolConfig()
         self.grid = Grid.covering(floor_plan.bounds, self.config.cell_size)
         self.centroids = self.grid.centroids()
+        self.floor_plan = floor_plan
         self.segments = occluder_segments(floor_plan.occluders)
         self._free = floor_plan.free
         shapely.prepare(self._free)
@@ -230,15 +262,41 @@ class Protocol:
             distances = self.rays(np.array([[pose.x, pose.y]]), np.array([pose.yaw]))[0]
         return visibility_polygon(pose, self.camera.hfov_deg, distances)
 
-    def canonical_viewpoint(self, cell: int, orientation: int, height: float) -> Pose | None:
-        """A pose of class ``(cell, orientation)`` looking at the centroid from behind it, or None."""
-        yaw = self.heading(orientation)
-        back = -np.array([math.cos(yaw), math.sin(yaw)])
-        for scale in (1.0, 0.75, 1.25, 0.5, 1.5):
-            xy = self.centroids[cell] + back * self.config.viewpoint_distance * scale
-            if self.is_free(xy)[0] and self.assign(xy[None], np.array([yaw]))[0] == cell:
-                return Pose(float(xy[0]), float(xy[1]), yaw, height)
-        return None
+    def canonical_viewpoints(self, cell: int, height: float) -> list[tuple[Pose, float] | None]:
+        """The canonical viewpoint of each heading class of ``cell``, with the share of
+        ``viewpoint_distance`` it stands back (:data:`VIEWPOINT_STEPS`); None for a class
+        that has none."""
+        c = self.config
+        yaws = [self.heading(o) for o in range(c.orientations)]
+        back = -np.array([[math.cos(yaw), math.sin(yaw)] for yaw in yaws])
+        found: list[tuple[Pose, float] | None] = [None] * c.orientations
+        for step in VIEWPOINT_STEPS:
+            todo = [o for o in range(c.orientations) if found[o] is None]
+            if not todo:
+                break
+            xy = self.centroids[cell] + back[todo] * c.viewpoint_distance * step
+            good = self.is_free(xy)
+            if good.any():
+                good[good] = self.assign(xy[good], np.array(yaws)[todo][good]) == cell
+            for o, (x, y), ok in zip(todo, xy, good):
+                if ok:
+                    found[o] = (Pose(float(x), float(y), yaws[o], height), step)
+        return found
+
+    def free_cells(self, rng: np.random.Generator | None = None) -> list[int]:
+        """Grid cells whose centroid is free floor, in a random order drawn from ``rng`` (else by index)."""
+        order = rng.permutation(len(self.centroids)) if rng is not None else range(len(self.centroids))
+        return [int(k) for k in order if self.is_free(self.centroids[k])[0]]
+
+    def eligible_cells(self, candidates: Sequence[int], height: float, limit: int | None = None) -> list[int]:
+        """The ``candidates`` whose every heading class has a canonical viewpoint (the first ``limit``)."""
+        found = []
+        for cell in candidates:
+            if all(v is not None for v in self.canonical_viewpoints(cell, height)):
+                found.append(cell)
+                if len(found) == limit:
+                    break
+        return found
 
     # --- the plan -------------------------------------------------------------
     def plan(self, workspace: str, height: float = 1.5, progress: Callable[[int, int], None] | None = None) -> Plan:
@@ -256,8 +314,7 @@ class Protocol:
         """
         c = self.config
         rng = np.random.default_rng(c.seed)
-        free_cells = [int(k) for k in rng.permutation(len(self.centroids)) if self.is_free(self.centroids[k])[0]]
-        chosen = self._choose_cells(free_cells, height, workspace)
+        chosen = self._choose_cells(self.free_cells(rng), height, workspace)
         reals = [int(rng.integers(c.orientations)) for _ in chosen]
         samples, training, real_place = self._training_samples(chosen, reals, {})
         cells = [cell for cell, _ in chosen]
@@ -300,7 +357,7 @@ class Protocol:
                 by_class.setdefault(key, []).append(k)
         height = float(np.median([p.height for p in captures])) if len(captures) else 1.5
         with_captures = sorted({cell for cell, _ in by_class})
-        chosen = self._choose_cells([with_captures[i] for i in rng.permutation(len(with_captures))], height, workspace)
+        chosen = self._choose_cells([with_captures[i] for i in rng.permutation(len(with_captures))], height, workspace, captures)
         reals, train_index = [], {}
         for rank, (cell, _) in enumerate(chosen):
             real = int(rng.choice([o for o in range(c.orientations) if (cell, o) in by_class]))
@@ -316,19 +373,34 @@ class Protocol:
                     samples.append(self._test_sample(place, cell, o, captures[k], distances[k], polygons, real_place, n, source=k))
         return Plan(workspace, c, self.grid, tuple(cell for cell, _ in chosen), tuple(samples))
 
-    def _choose_cells(self, candidates: list[int], height: float, workspace: str) -> list[tuple[int, list[Pose]]]:
-        """The first ``cells`` candidates whose every heading has a canonical viewpoint."""
+    def _choose_cells(
+        self, candidates: list[int], height: float, workspace: str, captures: Sequence[Pose] | None = None
+    ) -> list[tuple[int, list[Pose]]]:
+        """The first ``cells`` candidates whose every heading has a canonical viewpoint, those
+        whose viewpoints all stand at least :data:`FULL_REACH` back first, in candidate order."""
         c = self.config
-        chosen: list[tuple[int, list[Pose]]] = []
+        full: list[tuple[int, list[Pose]]] = []
+        near: list[tuple[int, list[Pose]]] = []
         for cell in candidates:
-            views = [self.canonical_viewpoint(cell, o, height) for o in range(c.orientations)]
-            if all(v is not None for v in views):
-                chosen.append((cell, views))  # type: ignore[arg-type]
-                if len(chosen) == c.cells:
-                    return chosen
+            found = self.canonical_viewpoints(cell, height)
+            if any(f is None for f in found):
+                continue
+            reach = min(step for _, step in found)  # type: ignore[misc]
+            (full if reach >= FULL_REACH else near).append((cell, [pose for pose, _ in found]))  # type: ignore[misc]
+            if len(full) == c.cells:
+                return full
+        if len(full) + len(near) >= c.cells:
+            rank = {cell: i for i, cell in enumerate(candidates)}
+            return sorted(full + near[: c.cells - len(full)], key=lambda chosen: rank[chosen[0]])
+        found_cells = len(full) + len(near)
+        fits = suggest(self.floor_plan, self.camera, c, height=height, captures=captures, limit=c.cells, stop_after=2).fits
+        instead = "; ".join(f"{f.describe(c)} gives {'at least ' if not f.complete else ''}{f.cells}" for f in suggestion_kinds(fits, c)[:2])
         raise InputError(
-            f"workspace {workspace!r}: only {len(chosen)} of its {len(self.centroids)} cells of {c.cell_size} m can be "
-            f"seen from all {c.orientations} headings, {c.cells} wanted; lower protocol.cells or change protocol.cell_size"
+            f"workspace {workspace!r}: only {found_cells} of its {len(self.centroids)} cells of {c.cell_size} m can be "
+            f"seen from all {c.orientations} headings, {c.cells} wanted; "
+            + (f"{instead}, or " if instead else f"no cell_size or viewpoint_distance tried gives {c.cells}; ")
+            + (f"lower protocol.cells to {found_cells}" if found_cells else "lower protocol.cells")
+            + " (`ssga workspace build --suggest` shows every value tried)"
         )
 
     def _training_samples(
@@ -477,6 +549,131 @@ class Protocol:
         if missing:
             raise InputError(
                 f"protocol: {missing} of {wanted} {split} views could not be placed after {tried} candidate poses; "
-                f"raise protocol.test_radius or protocol.max_candidates, or lower protocol.{split}_per_class"
+                f"raise protocol.test_radius or protocol.max_candidates, or lower protocol.{split}_per_class "
+                "(`ssga workspace build --suggest` tries other test radii)"
             )
         return sorted(tests, key=lambda s: s.id)
+
+
+@dataclass(frozen=True)
+class Fit:
+    """How many eligible cells (seen from all headings) one ``cell_size`` and
+    ``viewpoint_distance`` give on a floor plan."""
+
+    cell_size: float
+    viewpoint_distance: float
+    cells: int
+    """Eligible cells found."""
+    grid_cells: int
+    """Cells of the grid at this size."""
+    wanted: int
+    complete: bool
+    """False when counting stopped once ``wanted`` were found: there may be more."""
+
+    @property
+    def enough(self) -> bool:
+        return self.cells >= self.wanted
+
+    def changes(self, config: ProtocolConfig) -> dict[str, float]:
+        """The values that differ from ``config``'s."""
+        mine = {"cell_size": self.cell_size, "viewpoint_distance": self.viewpoint_distance}
+        return {key: value for key, value in mine.items() if value != getattr(config, key)}
+
+    def describe(self, config: ProtocolConfig) -> str:
+        """``protocol.cell_size = 0.75 with protocol.viewpoint_distance = 0.5``, or ``as configured``."""
+        return " with ".join(f"protocol.{key} = {value:g}" for key, value in self.changes(config).items()) or "as configured"
+
+
+@dataclass(frozen=True)
+class Suggestion:
+    """Protocol values that fit a floor plan (:func:`suggest`)."""
+
+    config: ProtocolConfig
+    fits: tuple[Fit, ...]
+    """The configured values first, then the others in the order they are suggested."""
+    test_radius: float | None = None
+    """The test radius with which every class of the first fit with enough cells gets its
+    test views, the configured one if it does; None if none tried does or it was not checked."""
+    test_radius_checked: bool = False
+
+    @property
+    def best(self) -> Fit | None:
+        """The first fit with enough cells: the configured values if they have."""
+        return next((f for f in self.fits if f.enough), None)
+
+
+def _alternatives(config: ProtocolConfig) -> list[tuple[float, float]]:
+    """``(cell_size, viewpoint_distance)`` pairs, the configured first, then one value changed
+    (a nearer viewpoint first: it keeps the cells the user asked for), then both."""
+    smaller = sorted((v for v in CELL_SIZES if v < config.cell_size), reverse=True)
+    sizes = smaller + sorted(v for v in CELL_SIZES if v > config.cell_size)
+    distances = sorted((d for d in VIEWPOINT_DISTANCES if d < config.viewpoint_distance), reverse=True)
+    return (
+        [(config.cell_size, config.viewpoint_distance)]
+        + [(config.cell_size, d) for d in distances]
+        + [(size, config.viewpoint_distance) for size in sizes]
+        + [(size, d) for size in sizes for d in distances]
+    )
+
+
+def suggestion_kinds(fits: Sequence[Fit], config: ProtocolConfig) -> list[Fit]:
+    """The first fit with enough cells of each kind of change from ``config`` (the values it
+    changes); changing both values only if changing one does not do."""
+    firsts: dict[frozenset[str], Fit] = {}
+    for fit in fits:
+        if fit.enough and fit.changes(config):
+            firsts.setdefault(frozenset(fit.changes(config)), fit)
+    single = [fit for kind, fit in firsts.items() if len(kind) == 1]
+    return single or list(firsts.values())
+
+
+def suggest(
+    floor_plan: FloorPlan,
+    camera: Camera,
+    config: ProtocolConfig,
+    *,
+    height: float = 1.5,
+    captures: Sequence[Pose] | None = None,
+    limit: int | None = None,
+    stop_after: int | None = None,
+    check_test_radius: bool = False,
+) -> Suggestion:
+    """Which ``cell_size`` and ``viewpoint_distance`` give ``config.cells`` eligible cells here.
+
+    Args:
+        captures: for a captured workspace, the capture poses: only cells with captures count.
+        limit: stop counting a pair's cells once this many are found (the answer is then
+            "at least"); None counts them all.
+        stop_after: stop trying pairs once this many kinds of change (a nearer viewpoint, another
+            cell size, both) have one with enough cells (:func:`suggestion_kinds`).
+        check_test_radius: also draw the test views of the first pair with enough cells,
+            with the configured ``test_radius`` and, if they cannot all be placed, others
+            (:data:`TEST_RADII`, nearest first); rendered workspaces only.
+    """
+    fits: list[Fit] = []
+    for cell_size, distance in _alternatives(config):
+        trial = Protocol(floor_plan, camera, config.model_copy(update={"cell_size": cell_size, "viewpoint_distance": distance}))
+        if captures is None:
+            candidates = trial.free_cells()
+        else:
+            xy = np.array([[p.x, p.y] for p in captures], dtype=np.float64).reshape(-1, 2)
+            assigned = trial.assign(xy, np.array([p.yaw for p in captures], dtype=np.float64))
+            candidates = sorted({int(k) for k in assigned if k >= 0})
+        found = trial.eligible_cells(candidates, height, limit)
+        complete = limit is None or len(found) < limit
+        fits.append(Fit(cell_size, distance, len(found), len(trial.centroids), config.cells, complete))
+        if stop_after is not None and len(suggestion_kinds(fits[1:], config)) >= stop_after:
+            break
+    suggestion = Suggestion(config, tuple(fits))
+    best = suggestion.best
+    if not check_test_radius or captures is not None or best is None:
+        return suggestion
+    fitting = config.model_copy(update={"cell_size": best.cell_size, "viewpoint_distance": best.viewpoint_distance})
+    others = sorted((r for r in TEST_RADII if r != config.test_radius), key=lambda r: (abs(math.log(r / config.test_radius)), r))
+    for radius in (config.test_radius, *others):
+        try:
+            Protocol(floor_plan, camera, fitting.model_copy(update={"test_radius": radius})).plan("suggest", height)
+        except InputError:
+            continue
+        return dataclasses.replace(suggestion, test_radius=radius, test_radius_checked=True)
+    return dataclasses.replace(suggestion, test_radius_checked=True)

@@ -286,6 +286,14 @@ class WorkspaceSource(Stage):
         variant whose stages need what is missing is refused before anything runs."""
         return cls.produces
 
+    @classmethod
+    def missing(cls, config: StageConfig) -> list[str]:
+        """What the workspace ``config`` describes lacks to open (a folder, a file, anything
+        to take a floor plan from), found from its files before anything runs: one line
+        each, starting with the parameter at fault (``"path: no such folder scene/"``).
+        ``ssga config validate`` reports them with the config's other problems."""
+        return []
+
     @abstractmethod
     def open(self) -> Any:
         """Open the workspace this source's config describes.

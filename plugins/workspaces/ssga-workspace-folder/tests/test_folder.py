@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
+import itertools
 import json
 import math
 
 import numpy as np
 import pytest
+import shapely
 from ssga_workspace_folder.plugin import FolderConfig, FolderWorkspaceSource
 
 from ssga_core import InputError, Pose
@@ -146,3 +148,103 @@ def test_captures_without_depth_refuse_a_depth_warp_before_anything_runs(tmp_pat
     with pytest.raises(ConfigError, match=r"variants\[0\].*depth"):
         validate_experiment({**config, "variants": ["SD", "PD"]}, ssga_installed_registry)
     assert [v.label for v in validate_experiment({**config, "variants": ["PD", "D"]}, ssga_installed_registry).variants] == ["SIFT-SL (PD)", "SIFT (D)"]
+
+
+# --- floor plans derived from the captures -------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def room_captures(tmp_path_factory):
+    """A folder of 60 captures (RGB and depth) rendered in the mesh workspace's box room (8 x 6 m,
+    two crates), without a floor plan; and the plan the mesh itself gives, to compare with."""
+    scenes = pytest.importorskip("ssga_workspace_mesh.scenes")  # a real renderer for real depth
+    from ssga_workspace_mesh.floorplan import floor_plan_from_mesh
+    from ssga_workspace_mesh.renderer import MeshRenderer
+
+    from ssga_core import Camera
+
+    root = tmp_path_factory.mktemp("room")
+    room = scenes.box_room()
+    truth = floor_plan_from_mesh(room)
+    renderer = MeshRenderer(room, Camera(width=96, height=96))
+    rng = np.random.default_rng(0)
+    rows = []
+    (root / "images").mkdir()
+    while len(rows) < 60:
+        x, y = rng.uniform(-3.7, 3.7), rng.uniform(-2.7, 2.7)
+        if not truth.can_stand(x, y):
+            continue
+        k = len(rows)
+        view = renderer.render(Pose(float(x), float(y), float(rng.uniform(-math.pi, math.pi))))
+        write_png(root / "images" / f"{k:04d}.png", view.rgb)
+        write_png(root / "images" / f"{k:04d}-depth.png", depth_to_png16(view.depth))
+        rows.append({"rgb": f"images/{k:04d}.png", "depth": f"images/{k:04d}-depth.png", "x": x, "y": y, "yaw": view.pose.yaw})
+    (root / "captures.jsonl").write_text("".join(json.dumps(r) + "\n" for r in rows))
+    return root, truth, rows
+
+
+def test_without_a_floor_plan_one_is_derived_from_poses_and_depth(room_captures, tmp_path, capsys):
+    root, truth, rows = room_captures
+    ws = open_folder(root)
+    assert "no floorplan.json; floor plan derived from 60 capture poses and 60 depth images" in capsys.readouterr().err
+    plan = ws.floor_plan
+    overlap = plan.free.intersection(truth.free).area
+    assert overlap > 0.8 * truth.free.area, "most of the free floor is found"
+    assert plan.free.difference(truth.free.buffer(0.15)).area < 0.05 * truth.free.area, "little is free that is not"
+    for x, y in ((4.05, 0.0), (-4.05, 1.0), (0.0, 3.05), (1.0, -3.05)):  # the walls
+        assert plan.occluders.distance(shapely.Point(x, y)) < 0.15, (x, y)
+    assert not plan.occluders.covers(shapely.Point(0.0, 0.0))
+    for (x, y), (dx, dy, _) in pytest.importorskip("ssga_workspace_mesh.scenes").CRATES.values():  # seen at camera height, and not to be stood in
+        crate = shapely.box(x - dx / 2, y - dy / 2, x + dx / 2, y + dy / 2)
+        assert plan.occluders.intersection(crate.buffer(0.1)).area > 0.05
+        assert not plan.can_stand(x, y)
+    assert all(plan.free.buffer(0.1).covers(shapely.Point(r["x"], r["y"])) for r in rows)
+    ds = build_dataset(ws, tmp_path / "ds", source={"name": "folder"}, protocol=ProtocolConfig(cells=2, test_per_class=1, seed=1))
+    assert len(ds.split("train")) == 2
+
+
+def test_captures_without_depth_give_the_floor_the_cameras_swept(room_captures, tmp_path, capsys):
+    root, _, rows = room_captures
+    (tmp_path / "images").symlink_to(root / "images")
+    (tmp_path / "captures.jsonl").write_text("".join(json.dumps({k: v for k, v in r.items() if k != "depth"}) + "\n" for r in rows))
+    plan = open_folder(tmp_path, robot_radius=0.4).floor_plan
+    assert "(no depth: no occluders)" in capsys.readouterr().err
+    assert plan.occluders.is_empty
+    # A disc around each capture, and a band along each step of less than a metre to the next.
+    xy = [(r["x"], r["y"]) for r in rows]
+    steps = [shapely.LineString(pair) for pair in itertools.pairwise(xy) if math.dist(*pair) < 1.0]
+    swept = shapely.union_all([shapely.Point(p).buffer(0.4) for p in xy] + [s.buffer(0.4) for s in steps])
+    assert steps and plan.free.symmetric_difference(swept).area < 0.02 * swept.area
+
+
+def test_a_hand_drawn_floor_plan_wins(room_captures, tmp_path, capsys):
+    root, _, _ = room_captures
+    (tmp_path / "images").symlink_to(root / "images")
+    (tmp_path / "captures.jsonl").write_text((root / "captures.jsonl").read_text())
+    write_json(tmp_path / "floorplan.json", {"free": [[[-4, -3], [4, -3], [4, 3], [-4, 3]]]})
+    plan = open_folder(tmp_path).floor_plan
+    assert plan.free.area == pytest.approx(48.0) and plan.occluders.is_empty
+    assert "derived" not in capsys.readouterr().err
+
+
+def test_config_validate_names_what_is_missing_before_anything_runs(tmp_path, ssga_installed_registry):
+    from ssga_core import ConfigError
+    from ssga_bench import validate_experiment
+
+    (tmp_path / "empty").mkdir()
+    base = {"variants": ["D"], "stages": {"descriptor": {"name": "dense-sift"}}}
+    with pytest.raises(ConfigError) as raised:
+        validate_experiment({**base, "workspace": {"name": "folder", "path": str(tmp_path / "empty")}}, ssga_installed_registry)
+    problems = str(raised.value)
+    assert "workspace.captures: " in problems and "captures.jsonl: no such file" in problems
+    assert "workspace.floor_plan: no " in problems and "floorplan.json, and no captures to derive one from" in problems
+    make_folder(tmp_path / "caps", n=3)
+    (tmp_path / "caps" / "floorplan.json").unlink()
+    workspace = {"name": "folder", "path": str(tmp_path / "caps")}
+    validate_experiment({**base, "workspace": workspace}, ssga_installed_registry)  # derived from the captures: fine
+    with pytest.raises(ConfigError, match=r"workspace.floor_plan: no .*floorplan.json; draw one, or set derive_floor_plan = true"):
+        validate_experiment({**base, "workspace": {**workspace, "derive_floor_plan": False}}, ssga_installed_registry)
+    with pytest.raises(ConfigError, match=r"workspace.floor_plan: no .*plan.json \(named in the config; leave floor_plan out"):
+        validate_experiment({**base, "workspace": {**workspace, "floor_plan": "plan.json"}}, ssga_installed_registry)
+    with pytest.raises(ConfigError, match=r"workspace.path: no such folder"):
+        validate_experiment({**base, "workspace": {"name": "folder", "path": str(tmp_path / "nowhere")}}, ssga_installed_registry)

@@ -11,7 +11,7 @@ import trimesh
 from ssga_core import Camera, Pose
 from ssga_workspace_mesh import renderer as renderer_module
 from ssga_workspace_mesh.renderer import MeshRenderer
-from ssga_workspace_mesh.scenes import CRATE, CRATES, WALL, box_room, textured_quad
+from ssga_workspace_mesh.scenes import CRATE, CRATES, WALL, box_room, subdivided, textured_quad
 
 
 def test_depth_reprojects_onto_the_mesh(room, camera):
@@ -143,3 +143,20 @@ def test_views_follow_the_camera(room):
     camera = Camera(width=160, height=120, hfov_deg=70.0)
     view = MeshRenderer(room, camera).render(Pose(0.0, 0.0, 0.0, 1.5))
     assert view.rgb.shape == (120, 160, 3) and view.camera == camera
+
+
+def test_a_subdivided_scene_renders_as_before(room, camera, pattern):
+    scene = room.copy()
+    scene.add_geometry(_facing_quad(pattern, distance=3.9), geom_name="painting")  # on the east wall
+    vertex_coloured = _facing_quad(np.zeros((2, 2, 3), np.uint8), distance=3.8)
+    vertex_coloured.visual = trimesh.visual.ColorVisuals(vertex_coloured, vertex_colors=[[255, 0, 0, 255], [0, 255, 0, 255], [0, 0, 255, 255], [0, 0, 0, 255]])
+    behind = trimesh.transformations.rotation_matrix(math.pi, (0, 0, 1))  # fills the view of a camera turned round
+    scene.add_geometry(vertex_coloured, geom_name="gradient", transform=behind)
+    dense = subdivided(scene, 20_000)
+    assert sum(len(g.faces) for g in dense.geometry.values()) >= 20_000
+    before, after = MeshRenderer(scene, camera), MeshRenderer(dense, camera)
+    for pose in (Pose(0.0, 0.0, 0.0, 1.5), Pose(0.0, 0.0, math.pi, 1.5), Pose(1.0, -1.0, 0.8, 1.4)):
+        a, b = before.render(pose), after.render(pose)
+        np.testing.assert_allclose(a.depth, b.depth, atol=1e-4)
+        assert (a.instance == b.instance).mean() > 0.999
+        assert (np.abs(a.rgb.astype(int) - b.rgb.astype(int)).max(axis=-1) <= 2).mean() > 0.999

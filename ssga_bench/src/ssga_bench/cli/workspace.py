@@ -2,16 +2,20 @@
 
 from __future__ import annotations
 
+import statistics
 from pathlib import Path
-from typing import Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 from pydantic import ValidationError
 
 from ssga_core.cli import command, current_registry
-from ssga_core.config import pydantic_problems, resolve_stage
+from ssga_core.config import ResolvedStage, pydantic_problems, resolve_stage
 from ssga_core.errors import ConfigError
 from ssga_bench.cli import parse_option, progress_bars
+
+if TYPE_CHECKING:
+    from ssga_bench.protocol import ProtocolConfig
 
 workspace_app = typer.Typer(
     help="Build benchmark workspaces (cells, classes, rendered views) and look at them.", no_args_is_help=True, rich_markup_mode=None
@@ -28,10 +32,23 @@ def build_cli(
     cells: Annotated[int | None, typer.Option(metavar="N", help="Location cells (classes = cells x 12).")] = None,
     test_per_class: Annotated[int | None, typer.Option(metavar="N", help="Test views per class (the paper: 1500).")] = None,
     cell_size: Annotated[float | None, typer.Option(metavar="METRES", help="Side of a location cell, metres.")] = None,
+    viewpoint_distance: Annotated[
+        float | None, typer.Option(metavar="METRES", help="Farthest a canonical viewpoint stands behind its cell's centroid, metres.")
+    ] = None,
+    test_radius: Annotated[float | None, typer.Option(metavar="METRES", help="Test views stand within this distance of their cell's centroid, metres.")] = None,
+    suggest: Annotated[
+        bool,
+        typer.Option(
+            "--suggest",
+            help="Build nothing: say how many cells each cell size and viewpoint distance gives on this workspace, and which "
+            "test radius places the test views.",
+        ),
+    ] = False,
     out: Annotated[Path | None, typer.Option(metavar="DIR", help="Dataset folder [default: runs/workspaces/<workspace>-<settings hash>].")] = None,
     overwrite: Annotated[bool, typer.Option(help="Replace a dataset built with other settings (only the files ssga wrote).")] = False,
 ) -> None:
-    """Plan and render a benchmark workspace; an interrupted build resumes where it stopped."""
+    """Plan and render a benchmark workspace; an interrupted build resumes where it stopped. With --suggest, only say
+    which cell size, viewpoint distance and test radius give the wanted cells on it."""
     from ssga_bench.config import load_experiment, packaged_config
     from ssga_bench.dataset import build_workspace
     from ssga_bench.protocol import ProtocolConfig
@@ -46,12 +63,23 @@ def build_cli(
         options = base.workspace.config.model_dump()
     if seed is not None and "seed" in registry.get("workspace", source).Config.model_fields:
         options["seed"] = seed
-    overrides = {k: v for k, v in {"seed": seed, "cells": cells, "test_per_class": test_per_class, "cell_size": cell_size}.items() if v is not None}
+    given_values = {
+        "seed": seed,
+        "cells": cells,
+        "test_per_class": test_per_class,
+        "cell_size": cell_size,
+        "viewpoint_distance": viewpoint_distance,
+        "test_radius": test_radius,
+    }
+    overrides = {k: v for k, v in given_values.items() if v is not None}
     try:
         protocol = ProtocolConfig.model_validate({**base.config.protocol.model_dump(), **overrides})
     except ValidationError as exc:
         raise ConfigError("command-line options", pydantic_problems(exc, ("protocol",))) from None
     stage = resolve_stage("workspace", {"name": source, **options, **given}, registry, source="command-line options")
+    if suggest:
+        typer.echo("\n".join(suggest_protocol(stage=stage, protocol=protocol)))
+        return
     with progress_bars(transient=False) as bars:
         dataset = build_workspace(stage, protocol, out=out, overwrite=overwrite, progress=bars)
     levels = dataset.plan.level_counts()
@@ -59,6 +87,53 @@ def build_cli(
         f"{dataset.root}: {dataset.num_classes} classes, {len(dataset.split('train'))} real training views, "
         f"{len(dataset.split('test'))} test views (L1 {levels[1]}, L2 {levels[2]}, L3 {levels[3]})"
     )
+
+
+def suggest_protocol(*, stage: ResolvedStage, protocol: ProtocolConfig) -> list[str]:
+    """What ``ssga workspace build --suggest`` prints: the cells each cell size and viewpoint
+    distance gives on the workspace (with the configured ones first), and the test radius."""
+    from ssga_bench.protocol import suggest, suggestion_kinds
+    from ssga_bench.workspace import Workspace
+
+    workspace = stage.create().open()
+    rendered = isinstance(workspace, Workspace)
+    suggestion = suggest(
+        workspace.floor_plan,
+        workspace.camera,
+        protocol,
+        height=workspace.camera_height if rendered else statistics.median(p.height for p in workspace.captures),
+        captures=None if rendered else workspace.captures,
+        limit=protocol.cells,
+        check_test_radius=True,
+    )
+    one_change = [f for f in suggestion.fits if len(f.changes(protocol)) <= 1]
+    shown = one_change if any(f.enough for f in one_change[1:]) else list(suggestion.fits)
+    lines = [
+        f"workspace {workspace.name!r}: {workspace.floor_plan.free.area:.1f} m^2 of free floor; {protocol.cells} cells wanted, "
+        f"each seen from all {protocol.orientations} headings" + ("" if rendered else " and holding captures"),
+        f"  {'cell_size':>9}  {'viewpoint_distance':>18}  cells (of the grid's)",
+    ]
+    for fit in shown:
+        count = f"{fit.cells}{'' if fit.complete else '+'} of {fit.grid_cells}"
+        note = "  <- configured" if not fit.changes(protocol) else ("" if fit.enough else "  too few")
+        lines.append(f"  {fit.cell_size:>9g}  {fit.viewpoint_distance:>18g}  {count}{note}")
+    best = suggestion.best
+    if best is None:
+        lines.append(f"no value tried gives {protocol.cells} cells: lower protocol.cells (at most {max(f.cells for f in suggestion.fits)})")
+        return lines
+    if not best.changes(protocol):
+        lines.append(f"the configured values give {protocol.cells} cells")
+    else:
+        lines.append("to get them: " + "; or ".join(f.describe(protocol) for f in suggestion_kinds(shown, protocol)[:3]))
+    if suggestion.test_radius_checked:
+        views = "test views" + (f" (with {best.describe(protocol)})" if best.changes(protocol) else "")
+        if suggestion.test_radius is None:
+            lines.append(f"{views}: none of the test radii tried places them all; lower protocol.test_per_class")
+        elif suggestion.test_radius == protocol.test_radius:
+            lines.append(f"{views}: all placed within protocol.test_radius = {protocol.test_radius:g}")
+        else:
+            lines.append(f"{views}: protocol.test_radius = {suggestion.test_radius:g} places them all ({protocol.test_radius:g} does not)")
+    return lines
 
 
 def show_cli(

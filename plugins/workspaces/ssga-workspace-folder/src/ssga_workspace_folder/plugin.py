@@ -1,12 +1,15 @@
-"""Captured images with poses and a floor plan, run through the same benchmark protocol.
+"""Captured images with poses, run through the same benchmark protocol.
 
-The folder holds a ``captures.jsonl`` (one line per image) and a ``floorplan.json``
-(:meth:`ssga_bench.workspace.FloorPlan.to_json`); see this package's README for the format.
+The folder holds a ``captures.jsonl`` (one line per image) and, if someone drew one, a
+``floorplan.json`` (:meth:`ssga_bench.workspace.FloorPlan.to_json`); without it the
+floor plan is derived from the captures' poses and depth (:mod:`.floorplan`). See this
+package's README for the format.
 """
 
 from __future__ import annotations
 
 import math
+import sys
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -17,14 +20,33 @@ from pydantic import Field
 from ssga_core import Camera, Data, InputError, Pose, SsgaError, StageConfig, View, WorkspaceSource, hookimpl
 from ssga_bench import depth_from_png16, ids_from_png16, read_json, read_jsonl, read_png
 from ssga_bench import FloorPlan
+from ssga_workspace_folder.floorplan import floor_plan_from_captures
+
+
+DEFAULT_FLOOR_PLAN = "floorplan.json"
+"""Looked for in the folder; when it is not there the floor plan is derived. A plan the
+config names explicitly must be there."""
 
 
 class FolderConfig(StageConfig):
-    path: Path = Field(description="The folder holding the captures and the floor plan.")
+    path: Path = Field(description="The folder holding the captures (and a floor plan, if one was drawn).")
     captures: str = Field(default="captures.jsonl", description="The captures file, relative to `path`.")
-    floor_plan: str = Field(default="floorplan.json", description="The floor-plan file, relative to `path`.")
+    floor_plan: str = Field(
+        default=DEFAULT_FLOOR_PLAN,
+        description="A hand-drawn floor plan, relative to `path`. The default file is used when it is there, else a plan is "
+        "derived from the captures; another name must exist.",
+    )
+    derive_floor_plan: bool = Field(
+        default=True, description="Without the floor-plan file, derive one from the captures' poses and depth; false requires the file."
+    )
     hfov_deg: float = Field(default=90.0, gt=0.0, lt=180.0, description="Horizontal field of view of the camera, degrees.")
     yaw_in_degrees: bool = Field(default=False, description="Read `yaw` in degrees instead of radians.")
+    plan_resolution: float = Field(default=0.1, ge=0.02, le=1.0, description="Derived floor plan: its grid, metres.")
+    robot_radius: float = Field(
+        default=0.3, gt=0.0, le=5.0, description="Derived floor plan: how far around each capture (and the path between) the floor is free, metres."
+    )
+    clearance: float = Field(default=0.25, ge=0.0, le=5.0, description="Derived floor plan: how far from a seen obstacle a camera may stand, metres.")
+    max_depth: float = Field(default=6.0, gt=0.0, le=100.0, description="Derived floor plan: depth beyond this is not used, metres.")
 
 
 @dataclass(frozen=True)
@@ -68,19 +90,26 @@ class FolderWorkspace:
 
     def load(self, index: int) -> View:
         c = self._captures[index]
-        depth = _single(c.depth)
         semantic, instance = _single(c.semantic), _single(c.instance)
         try:
             return View(
                 rgb=read_png(c.rgb, color=True),
                 pose=c.pose,
                 camera=self.camera,
-                depth=None if depth is None else (depth.astype(np.float32) if depth.dtype.kind == "f" else depth_from_png16(depth)),
+                depth=depth_of(c),
                 semantic=None if semantic is None else ids_from_png16(semantic),
                 instance=None if instance is None else ids_from_png16(instance),
             )
         except InputError as exc:
             raise InputError(f"{c.rgb}: {exc}") from None
+
+
+def depth_of(capture: Capture) -> np.ndarray | None:
+    """A capture's planar depth in metres (``0``: unknown), or None if it has none."""
+    depth = _single(capture.depth)
+    if depth is None:
+        return None
+    return depth.astype(np.float32) if depth.dtype.kind == "f" else depth_from_png16(depth)
 
 
 def _single(path: Path | None) -> np.ndarray | None:
@@ -107,28 +136,69 @@ class FolderWorkspaceSource(WorkspaceSource):
         """RGB, and depth or semantic ids where every capture names such an image (read from the captures file)."""
         assert isinstance(config, FolderConfig)
         try:
-            rows = read_jsonl(config.path / config.captures)
+            rows = list(read_jsonl(config.path / config.captures))  # read_jsonl is lazy: its errors come while reading
         except SsgaError:
-            return cls.produces  # opening the workspace reports the file
+            return cls.produces  # validation reports the file (missing), as opening the workspace would
         rows = [row for row in rows if isinstance(row, dict)]
         extra = {data for data, key in ((Data.DEPTH, "depth"), (Data.SEMANTIC, "semantic")) if rows and all(row.get(key) for row in rows)}
         return frozenset({Data.RGB, *extra})
 
+    @classmethod
+    def missing(cls, config: StageConfig) -> list[str]:
+        """The folder, the captures file, and a floor plan or captures to derive one from."""
+        assert isinstance(config, FolderConfig)
+        root = config.path
+        if not root.is_dir():
+            return [f"path: no such folder {root}"]
+        problems, rows = [], []
+        captures = root / config.captures
+        try:
+            rows = list(read_jsonl(captures))
+        except SsgaError as exc:
+            problems.append(f"captures: {exc}")
+        else:
+            if not rows:
+                problems.append(f"captures: {captures} has no captures")
+        plan = root / config.floor_plan
+        if not plan.is_file():
+            if not config.derive_floor_plan:
+                problems.append(f"floor_plan: no {plan}; draw one, or set derive_floor_plan = true to derive it from the captures")
+            elif config.floor_plan != DEFAULT_FLOOR_PLAN:
+                problems.append(f"floor_plan: no {plan} (named in the config; leave floor_plan out to derive one from the captures)")
+            elif not rows:
+                problems.append(f"floor_plan: no {plan}, and no captures to derive one from")
+        return problems
+
     def open(self) -> FolderWorkspace:
-        root = self.config.path
+        config: FolderConfig = self.config  # type: ignore[assignment]
+        root = config.path
         if not root.is_dir():
             raise InputError(f"{root}: no such folder (workspace.path)")
-        plan_path = root / self.config.floor_plan
-        floor_plan = FloorPlan.from_json(read_json(plan_path), str(plan_path))
-        captures_path = root / self.config.captures
+        captures_path = root / config.captures
         captures = [
-            parse_capture(row, root, f"{captures_path}:{n}", self.config.yaw_in_degrees)
-            for n, row in enumerate(read_jsonl(captures_path), 1)
+            parse_capture(row, root, f"{captures_path}:{n}", config.yaw_in_degrees) for n, row in enumerate(read_jsonl(captures_path), 1)
         ]
         if not captures:
             raise InputError(f"{captures_path}: no captures")
         first = read_png(captures[0].rgb, color=True)
-        camera = Camera(width=first.shape[1], height=first.shape[0], hfov_deg=self.config.hfov_deg)
+        camera = Camera(width=first.shape[1], height=first.shape[0], hfov_deg=config.hfov_deg)
+        plan_path = root / config.floor_plan
+        if plan_path.is_file() or not config.derive_floor_plan or config.floor_plan != DEFAULT_FLOOR_PLAN:
+            floor_plan = FloorPlan.from_json(read_json(plan_path), str(plan_path))  # a hand-drawn plan wins
+        else:
+            derived = floor_plan_from_captures(
+                [c.pose for c in captures],
+                camera,
+                (depth_of(c) for c in captures),
+                resolution=config.plan_resolution,
+                robot_radius=config.robot_radius,
+                clearance=config.clearance,
+                max_depth=config.max_depth,
+                source=str(captures_path),
+            )
+            # Said before anything runs, so a plan that looks wrong is seen before a build uses it.
+            print(f"{root}: no {config.floor_plan}; {derived.describe()}", file=sys.stderr)
+            floor_plan = derived.plan
         return FolderWorkspace(root.resolve().name, camera, floor_plan, captures)
 
 

@@ -14,6 +14,8 @@ _EXPORTS = {
     "load_mesh_scene": "ssga_workspace_mesh.loading",
     "save_mesh_scene": "ssga_workspace_mesh.loading",
     "sidecar_path": "ssga_workspace_mesh.loading",
+    "read_semantic_table": "ssga_workspace_mesh.hm3d",
+    "subdivided": "ssga_workspace_mesh.scenes",
     "floor_plan_from_mesh": "ssga_workspace_mesh.floorplan",
     "load_floor_plan": "ssga_workspace_mesh.floorplan",
     "MeshWorkspace": "ssga_workspace_mesh.plugin",

@@ -22,7 +22,7 @@ from shapely.geometry.base import BaseGeometry
 
 from ssga_core import InputError
 from ssga_bench import read_json
-from ssga_bench import FloorPlan
+from ssga_bench import FloorPlan, grid_polygons
 from ssga_workspace_mesh.meshdata import RayCaster, flatten_scene
 
 PROBE_DIRECTIONS = 16
@@ -154,25 +154,12 @@ def _standable_area(vertices: np.ndarray, probe: _Probe, resolution: float, floo
         return floor & (up | (hits >= ENCLOSED_FRACTION)) & (back <= 0.5)
 
     mask = _batched(classify, xy).reshape(gy.shape)
-    return _cells_to_polygons(mask, xs[0] - resolution / 2.0, ys[0] - resolution / 2.0, resolution)
+    return grid_polygons(mask, (xs[0] - resolution / 2.0, ys[0] - resolution / 2.0), resolution)
 
 
 def _batched(fn: Callable[[np.ndarray], np.ndarray], points: np.ndarray) -> np.ndarray:
     """``fn`` over ``points`` in batches (a grid over a whole house is millions of rays)."""
     return np.concatenate([fn(points[i : i + _BATCH]) for i in range(0, max(len(points), 1), _BATCH)])
-
-
-def _cells_to_polygons(mask: np.ndarray, x0: float, y0: float, size: float) -> BaseGeometry:
-    """The union of the true cells of a grid mask, built from one box per horizontal run."""
-    padded = np.zeros((mask.shape[0], mask.shape[1] + 2), dtype=np.int8)
-    padded[:, 1:-1] = mask
-    change = np.diff(padded, axis=1)
-    rows, starts = np.nonzero(change == 1)
-    _, ends = np.nonzero(change == -1)  # same row-major order as the starts
-    if len(rows) == 0:
-        return shapely.Polygon()
-    boxes = shapely.box(x0 + starts * size, y0 + rows * size, x0 + ends * size, y0 + (rows + 1) * size)
-    return shapely.union_all(boxes)
 
 
 def _polygonal(geom: BaseGeometry, min_area: float = 0.0) -> BaseGeometry:

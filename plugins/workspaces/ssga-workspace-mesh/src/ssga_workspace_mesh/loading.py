@@ -10,10 +10,16 @@ category and an instance id (format in the package README)::
 
     {"categories": {"wall": 1, "chair": 5},
      "geometries": {"wall_0": {"category": "wall", "semantic_id": 1, "instance_id": 7}}}
+
+Two things Habitat's scenes need are handled here too: textures compressed with Basis
+Universal are decoded (:mod:`.basisu`), and HM3D's semantic mesh and table beside
+the scene (``NAME.semantic.glb``, ``NAME.semantic.txt``) are added to it as label
+surfaces (:mod:`.hm3d`), before the change of frame, so that they move with it.
 """
 
 from __future__ import annotations
 
+import io
 import json
 from collections.abc import Mapping, Sequence
 from pathlib import Path
@@ -24,6 +30,9 @@ import trimesh
 
 from ssga_core import InputError
 from ssga_bench import atomic_write_bytes
+from ssga_workspace_mesh.basisu import with_decoded_textures
+from ssga_workspace_mesh.gravity import UpAxis, level_scene, parse_up_axis
+from ssga_workspace_mesh.hm3d import load_semantic_surface, semantic_files
 from ssga_workspace_mesh.meshdata import geometry_ids
 
 Y_UP_TO_Z_UP = np.array(
@@ -55,7 +64,7 @@ def floor_plan_path(path: str | Path) -> Path:
 
 
 def load_mesh_scene(
-    path: str | Path, up_axis: Literal["y", "z"] = "y"
+    path: str | Path, up_axis: UpAxis = "y"
 ) -> tuple[trimesh.Scene, dict[str, tuple[int, int]]]:
     """Load a mesh file into ssga's world frame, with the ids from its sidecar.
 
@@ -63,32 +72,62 @@ def load_mesh_scene(
         path: a ``.glb``, ``.gltf`` or ``.obj`` file (an OBJ's ``.mtl`` and textures
             beside it).
         up_axis: ``"y"`` for files in glTF/Habitat's ``y``-up convention (the default),
-            ``"z"`` for files already ``z`` up.
+            ``"z"`` for files already ``z`` up; ``"auto"`` finds up from the mesh, or an
+            ``[x, y, z]`` vector gives it (:mod:`.gravity`): the scene is then levelled
+            and its floor put at ``z = 0``, and ``scene.metadata["levelling"]`` says how
+            (a :class:`~ssga_workspace_mesh.gravity.Levelling`).
 
     Returns:
         The scene, and geometry name -> ``(semantic_id, instance_id)`` from the sidecar
-        (empty without one).
+        (empty without one). With HM3D's ``NAME.semantic.glb`` and ``NAME.semantic.txt``
+        beside ``NAME.basis.glb`` (or ``NAME.glb``), the scene also holds their label
+        surfaces, which give every view its ids.
 
     Raises:
-        InputError: the file is missing, unreadable, not a triangle mesh, or its
-            sidecar is malformed; one line naming the file.
+        InputError: the file is missing, unreadable, not a triangle mesh, its textures
+            need a decoder that is not installed, or its sidecar or semantic files are
+            malformed or only half there; one line naming the file.
     """
     path = Path(path)
-    if up_axis not in ("y", "z"):
-        raise InputError(f"{path}: up_axis must be 'y' or 'z', got {up_axis!r}")
+    up_axis = parse_up_axis(up_axis, str(path))
     if not path.is_file():
         raise InputError(f"{path}: no such mesh file (expected a {', '.join(MESH_SUFFIXES)} file)")
     if path.suffix.lower() not in MESH_SUFFIXES:
         raise InputError(f"{path}: unsupported mesh format {path.suffix!r} (expected {', '.join(MESH_SUFFIXES)})")
+    decoded = with_decoded_textures(path)
     try:
-        scene = trimesh.load(path, force="scene")
+        if decoded is None:
+            scene = trimesh.load(path, force="scene")
+        else:
+            data, file_type = decoded
+            scene = trimesh.load(io.BytesIO(data), file_type=file_type, force="scene", resolver=trimesh.resolvers.FilePathResolver(path))
     except Exception as exc:  # noqa: BLE001 - any loader failure is a bad file, reported in one line
         raise InputError(f"{path}: cannot read a triangle mesh ({_one_line(exc)})") from None
     if not any(isinstance(g, trimesh.Trimesh) and len(g.faces) for g in scene.geometry.values()):
         raise InputError(f"{path}: cannot read a triangle mesh (the file has no triangles)")
+    _add_hm3d_semantics(scene, path)
     if up_axis == "y":
         scene.apply_transform(Y_UP_TO_Z_UP)
+    elif up_axis != "z":
+        try:
+            scene.metadata["levelling"] = level_scene(scene, up_axis)
+        except InputError as exc:
+            raise InputError(f"{path}: {exc}") from None
     return scene, read_sidecar(sidecar_path(path), list(scene.geometry))
+
+
+def _add_hm3d_semantics(scene: trimesh.Scene, path: Path) -> None:
+    """Add the label surfaces of HM3D's semantic files beside ``path``, if it has them."""
+    mesh_file, table_file = semantic_files(path)
+    if not (mesh_file.exists() or table_file.exists()):
+        return
+    for required in (mesh_file, table_file):
+        if not required.exists():
+            raise InputError(f"{required}: missing; HM3D's semantic annotations need both {mesh_file.name} and {table_file.name}")
+    labels = load_semantic_surface(mesh_file, table_file)
+    for node in labels.graph.nodes_geometry:
+        transform, name = labels.graph[node]
+        scene.add_geometry(labels.geometry[name], geom_name=f"semantic:{name}", transform=transform)
 
 
 def save_mesh_scene(

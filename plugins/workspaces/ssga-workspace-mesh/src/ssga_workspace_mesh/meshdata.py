@@ -5,11 +5,16 @@ soup in world coordinates: a hit gives a face index, and every per-pixel quantit
 (colour, texture coordinates, normal, semantic and instance id) is then a gather
 from a per-face array. :func:`flatten_scene` does that once, so rendering a view
 is a handful of vectorised numpy operations around one call into Embree.
+
+Ids are per geometry, or per face where a geometry's metadata lists them
+(:data:`FACE_SEMANTIC`, :data:`FACE_INSTANCE`). A scene may also hold label surfaces
+(:data:`LABEL_SURFACE`: HM3D's semantic mesh), which :func:`flatten_labels` keeps apart:
+they give the ids of what a ray hits without being seen themselves.
 """
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping
 from dataclasses import dataclass
 
 import numpy as np
@@ -24,6 +29,19 @@ Ids = Mapping[str, tuple[int, int]]
 """Geometry name -> ``(semantic_id, instance_id)``."""
 
 NO_TEXTURE = -1
+
+LABEL_SURFACE = "label_surface"
+"""``geometry.metadata`` key: true on a surface that carries ids and is never seen in RGB or
+depth (HM3D's semantic mesh, :mod:`.hm3d`). Where a scene has such surfaces, each view's
+semantic and instance ids are those of the first label surface its rays meet."""
+
+UNANNOTATED = 0
+"""Instance id where label surfaces exist but none is hit, or where no object claims the
+surface hit (HM3D's object 0, "unknown"); its semantic id is ``-1``."""
+
+FACE_SEMANTIC = "face_semantic_id"
+FACE_INSTANCE = "face_instance_id"
+"""``geometry.metadata`` keys: ``(F,)`` ids of each face, which win over the geometry's own."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -84,9 +102,10 @@ def as_scene(mesh: trimesh.Scene | trimesh.Trimesh) -> trimesh.Scene:
 
 
 def flatten_scene(mesh: trimesh.Scene | trimesh.Trimesh, ids: Ids | None = None) -> FlatMesh:
-    """Flatten every triangle mesh of ``mesh`` (node transforms applied) into a :class:`FlatMesh`.
+    """Flatten every visible triangle mesh of ``mesh`` (node transforms applied) into a :class:`FlatMesh`.
 
-    Non-triangle geometry (paths, point clouds) is skipped: it has no surface to hit.
+    Non-triangle geometry (paths, point clouds) is skipped: it has no surface to hit;
+    so are label surfaces (:data:`LABEL_SURFACE`, see :func:`flatten_labels`).
     """
     scene = as_scene(mesh)
     per_geometry = geometry_ids(scene, ids)
@@ -94,19 +113,12 @@ def flatten_scene(mesh: trimesh.Scene | trimesh.Trimesh, ids: Ids | None = None)
     texture_of: dict[int, int] = {}  # id(PIL image) -> index, so shared materials are stored once
     parts: list[tuple[np.ndarray, ...]] = []
     offset = 0
-    for node in scene.graph.nodes_geometry:
-        transform, name = scene.graph[node]
-        geom = scene.geometry.get(name)
-        if not isinstance(geom, trimesh.Trimesh) or len(geom.faces) == 0:
-            continue
-        faces = np.asarray(geom.faces, dtype=np.int64)
-        vertices = trimesh.transform_points(np.asarray(geom.vertices, dtype=np.float64), transform)
+    for name, geom, vertices, faces, mirrored in _triangle_meshes(scene, labels=False):
         normals = _face_normals(vertices, faces)
-        if np.linalg.det(transform[:3, :3]) < 0:  # a mirror flips the winding, not the surface
+        if mirrored:  # a mirror flips the winding, not the surface
             normals = -normals
         rgb, uv, tex = _appearance(geom, faces, textures, texture_of)
-        sem, inst = per_geometry[name]
-        n = len(faces)
+        sem, inst = _face_ids(name, geom, per_geometry[name])
         parts.append(
             (
                 vertices.astype(np.float32),
@@ -114,9 +126,9 @@ def flatten_scene(mesh: trimesh.Scene | trimesh.Trimesh, ids: Ids | None = None)
                 normals.astype(np.float32),
                 rgb,
                 uv,
-                np.full(n, tex, dtype=np.int32),
-                np.full(n, sem, dtype=np.int32),
-                np.full(n, inst, dtype=np.int32),
+                np.full(len(faces), tex, dtype=np.int32),
+                sem,
+                inst,
             )
         )
         offset += len(vertices)
@@ -125,6 +137,65 @@ def flatten_scene(mesh: trimesh.Scene | trimesh.Trimesh, ids: Ids | None = None)
     columns = [np.concatenate(c) for c in zip(*parts, strict=True)]
     vertices, faces, normals, rgb, uv, tex, sem, inst = columns
     return FlatMesh(vertices, faces, normals, rgb, uv, tex, tuple(textures), sem, inst)
+
+
+@dataclass(frozen=True, eq=False)
+class LabelMesh:
+    """The label surfaces of a scene (:data:`LABEL_SURFACE`) in world coordinates, with each face's ids.
+
+    Attributes:
+        vertices: ``(V, 3)`` float32 world positions.
+        faces: ``(F, 3)`` int32 vertex indices.
+        semantic: ``(F,)`` int32 semantic id of each face.
+        instance: ``(F,)`` int32 instance id of each face.
+    """
+
+    vertices: np.ndarray
+    faces: np.ndarray
+    semantic: np.ndarray
+    instance: np.ndarray
+
+
+def flatten_labels(mesh: trimesh.Scene | trimesh.Trimesh) -> LabelMesh | None:
+    """The label surfaces of ``mesh`` flattened like :func:`flatten_scene`'s; None if it has none."""
+    scene = as_scene(mesh)
+    per_geometry = geometry_ids(scene)
+    parts = []
+    offset = 0
+    for name, geom, vertices, faces, _ in _triangle_meshes(scene, labels=True):
+        sem, inst = _face_ids(name, geom, per_geometry[name])
+        parts.append((vertices.astype(np.float32), (faces + offset).astype(np.int32), sem, inst))
+        offset += len(vertices)
+    if not parts:
+        return None
+    return LabelMesh(*(np.concatenate(c) for c in zip(*parts, strict=True)))
+
+
+def _triangle_meshes(scene: trimesh.Scene, *, labels: bool) -> Iterator[tuple[str, trimesh.Trimesh, np.ndarray, np.ndarray, bool]]:
+    """Each instance of a triangle mesh that is (``labels``) or is not a label surface: its
+    name, the geometry, world vertices ``(V, 3)`` float64, faces ``(F, 3)`` int64, and
+    whether its transform mirrors."""
+    for node in scene.graph.nodes_geometry:
+        transform, name = scene.graph[node]
+        geom = scene.geometry.get(name)
+        if not isinstance(geom, trimesh.Trimesh) or len(geom.faces) == 0:
+            continue
+        if bool(geom.metadata.get(LABEL_SURFACE, False)) != labels:
+            continue
+        vertices = trimesh.transform_points(np.asarray(geom.vertices, dtype=np.float64), transform)
+        yield name, geom, vertices, np.asarray(geom.faces, dtype=np.int64), bool(np.linalg.det(transform[:3, :3]) < 0)
+
+
+def _face_ids(name: str, geom: trimesh.Trimesh, ids: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+    """``(F,)`` semantic and instance ids of a geometry's faces: its per-face ids where it has them."""
+    n = len(geom.faces)
+    out = []
+    for key, default in ((FACE_SEMANTIC, ids[0]), (FACE_INSTANCE, ids[1])):
+        per_face = geom.metadata.get(key)
+        if per_face is not None and len(per_face) != n:
+            raise InputError(f"mesh: geometry {name!r} has {len(per_face)} {key} values for its {n} faces")
+        out.append(np.asarray(per_face, dtype=np.int32) if per_face is not None else np.full(n, default, dtype=np.int32))
+    return out[0], out[1]
 
 
 def _face_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:

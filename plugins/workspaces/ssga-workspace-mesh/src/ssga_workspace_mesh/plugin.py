@@ -7,16 +7,19 @@ the better part of a second for a workspace that may never be opened.
 
 from __future__ import annotations
 
+import math
+import sys
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Literal
 
-from pydantic import Field
+from pydantic import Field, field_validator
 
 from ssga_core import Camera, Data, Pose, StageConfig, View, WorkspaceSource, hookimpl
 from ssga_bench import FloorPlan, Workspace
 
 if TYPE_CHECKING:
+    from ssga_workspace_mesh.gravity import Levelling
     from ssga_workspace_mesh.renderer import MeshRenderer
 
 
@@ -24,8 +27,11 @@ class MeshConfig(StageConfig):
     """Which mesh file, how to read it, and the camera its views are taken with."""
 
     path: Path = Field(description="The mesh file: .glb, .gltf or .obj (with its .mtl and textures beside it); relative to the config file.")
-    up_axis: Literal["y", "z"] = Field(
-        default="y", description="The file's up axis: 'y' for glTF/Habitat/HM3D files, 'z' for files already in ssga's frame."
+    up_axis: Literal["y", "z", "auto"] | tuple[float, float, float] = Field(
+        default="y",
+        description="The file's up: 'y' for glTF/Habitat/HM3D files, 'z' for files already in ssga's frame, 'auto' to find it "
+        "from the mesh's floor, ceiling and walls (a scan in any orientation), or the floor's normal [x, y, z] in the file's "
+        "frame. With 'auto' or a vector the mesh is levelled, its floor put at z = 0, and what was found is printed.",
     )
     floor_plan: Path | None = Field(
         default=None,
@@ -40,6 +46,17 @@ class MeshConfig(StageConfig):
     )
     shading: bool = Field(default=True, description="Shade surfaces by their angle to a fixed light, so flat walls read.")
 
+    @field_validator("up_axis", mode="before")
+    @classmethod
+    def _an_axis_or_a_direction(cls, value: object) -> object:
+        # One message for every wrong value, rather than one per branch of the union.
+        if value in ("y", "z", "auto"):
+            return value
+        numbers = isinstance(value, (list, tuple)) and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in value)
+        if not numbers or len(value) != 3 or not all(math.isfinite(v) for v in value) or not any(value):  # type: ignore[arg-type]
+            raise ValueError(f"expected 'y', 'z', 'auto' or the floor's normal as a non-zero [x, y, z], got {value!r}")
+        return value
+
 
 @dataclass(frozen=True, eq=False)
 class MeshWorkspace:
@@ -50,6 +67,8 @@ class MeshWorkspace:
     floor_plan: FloorPlan
     renderer: MeshRenderer
     camera_height: float = 1.5
+    levelling: Levelling | None = None
+    """How the mesh was levelled (``up_axis = "auto"`` or a vector), else None."""
 
     def render(self, pose: Pose) -> View:
         return self.renderer.render(pose)
@@ -62,13 +81,31 @@ class MeshWorkspaceSource(WorkspaceSource):
     Config = MeshConfig
     produces = frozenset({Data.RGB, Data.DEPTH, Data.SEMANTIC})
 
+    @classmethod
+    def missing(cls, config: StageConfig) -> list[str]:
+        """The mesh file, and a floor-plan file the config names, checked before anything runs."""
+        assert isinstance(config, MeshConfig)
+        problems = []
+        if not config.path.is_file():
+            problems.append(f"path: no such mesh file {config.path} (expected a .glb, .gltf or .obj file)")
+        if config.floor_plan is not None and not config.floor_plan.is_file():
+            problems.append(f"floor_plan: no such file {config.floor_plan}")
+        return problems
+
     def open(self) -> Workspace:
         from ssga_workspace_mesh.floorplan import floor_plan_from_mesh, load_floor_plan
+        from ssga_workspace_mesh.gravity import Levelling
         from ssga_workspace_mesh.loading import floor_plan_path, load_mesh_scene
         from ssga_workspace_mesh.renderer import MeshRenderer
 
         config: MeshConfig = self.config  # type: ignore[assignment]
         scene, ids = load_mesh_scene(config.path, up_axis=config.up_axis)
+        levelling = scene.metadata.get("levelling")
+        if not isinstance(levelling, Levelling):
+            levelling = None  # not levelled here (a file may carry the record of an earlier levelling)
+        else:
+            # Said before anything runs, so a wrong guess is seen before a build renders it.
+            print(f"{config.path}: {levelling.describe()}", file=sys.stderr)
         camera = Camera(width=config.width, height=config.height, hfov_deg=config.hfov_deg)
         plan_file = config.floor_plan or floor_plan_path(config.path)
         if config.floor_plan or plan_file.exists():
@@ -76,7 +113,15 @@ class MeshWorkspaceSource(WorkspaceSource):
         else:
             plan = floor_plan_from_mesh(scene, camera_height=config.camera_height, source=str(config.path))
         renderer = MeshRenderer(scene, camera, ids=ids, shading=config.shading)
-        return MeshWorkspace(name=config.path.stem, camera=camera, floor_plan=plan, renderer=renderer, camera_height=config.camera_height)
+        return MeshWorkspace(
+            name=scene_name(config.path), camera=camera, floor_plan=plan, renderer=renderer, camera_height=config.camera_height, levelling=levelling
+        )
+
+
+def scene_name(path: Path) -> str:
+    """The scene's name from its file: the stem, less HM3D's ``.basis`` (``TEEsavR23oF.basis.glb`` is ``TEEsavR23oF``)."""
+    stem = path.stem
+    return stem.removesuffix(".basis") or stem
 
 
 @hookimpl

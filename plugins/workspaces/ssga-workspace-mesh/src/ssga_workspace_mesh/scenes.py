@@ -6,10 +6,14 @@ their ids in ``metadata["semantic_id"]`` / ``["instance_id"]``, as the renderer 
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import trimesh
 from PIL import Image
 from trimesh.visual.material import PBRMaterial
+
+from ssga_workspace_mesh.meshdata import FACE_INSTANCE, FACE_SEMANTIC
 
 WALL, FLOOR, CEILING, CRATE = 1, 2, 3, 4
 """Semantic ids of :func:`box_room`."""
@@ -96,8 +100,90 @@ def textured_clutter(triangles: int = 50_000, seed: int = 0, room: float = 12.0)
     return scene
 
 
+def subdivided(scene: trimesh.Scene, min_triangles: int) -> trimesh.Scene:
+    """``scene`` with every triangle split in four, as often as it takes to reach ``min_triangles``.
+
+    Texture coordinates and vertex colours are interpolated and face colours and per-face
+    ids repeated, so the scene renders as before: a stand-in for a scan's dense mesh (HM3D's
+    are 0.5-1 million triangles) built from a scene with the same look and fewer triangles.
+    """
+    total = sum(len(g.faces) for g in scene.geometry.values() if isinstance(g, trimesh.Trimesh))
+    times = max(0, math.ceil(math.log(min_triangles / max(total, 1), 4)))
+    out = trimesh.Scene()
+    for node in scene.graph.nodes_geometry:
+        transform, name = scene.graph[node]
+        geometry = scene.geometry[name]
+        if isinstance(geometry, trimesh.Trimesh) and times:
+            geometry = _subdivide(geometry, times)
+        out.add_geometry(geometry, geom_name=name, node_name=node, transform=transform)
+    return out
+
+
+def _subdivide(mesh: trimesh.Trimesh, times: int) -> trimesh.Trimesh:
+    visual = mesh.visual
+    attributes: dict[str, np.ndarray] = {}
+    uv = getattr(visual, "uv", None)
+    if isinstance(visual, trimesh.visual.TextureVisuals) and uv is not None and len(uv) == len(mesh.vertices):
+        attributes["uv"] = np.asarray(uv, dtype=np.float64)
+    elif visual.kind == "vertex":
+        attributes["rgba"] = np.asarray(visual.vertex_colors, dtype=np.float64)
+    vertices, faces = np.asarray(mesh.vertices), np.asarray(mesh.faces)
+    for _ in range(times):
+        # Face i becomes faces 4i..4i+3, its corners' attributes averaged at the edge midpoints.
+        vertices, faces, attributes = trimesh.remesh.subdivide(vertices, faces, vertex_attributes=attributes)
+    per_face = 4**times
+    metadata = {k: np.repeat(v, per_face) if k in (FACE_SEMANTIC, FACE_INSTANCE) else v for k, v in mesh.metadata.items()}
+    out = trimesh.Trimesh(vertices, faces, process=False, metadata=metadata)
+    if "uv" in attributes:
+        out.visual = trimesh.visual.TextureVisuals(uv=attributes["uv"], material=visual.material)
+    elif "rgba" in attributes:
+        out.visual = trimesh.visual.ColorVisuals(out, vertex_colors=np.rint(attributes["rgba"]).astype(np.uint8))
+    elif visual.kind == "face":
+        out.visual = trimesh.visual.ColorVisuals(out, face_colors=np.repeat(visual.face_colors, per_face, axis=0))
+    return out
+
+
 def _planar_uv(vertices: np.ndarray) -> np.ndarray:
     """Texture coordinates from a projection on the two longest axes (enough to look textured)."""
     span = np.ptp(vertices, axis=0)
     axes = np.argsort(span)[::-1][:2]
     return (vertices[:, axes] - vertices[:, axes].min(axis=0)) / np.maximum(span[axes], 1e-9)
+
+
+FURNITURE = (
+    # name, (width range, depth range, height), where: along a wall or free-standing
+    ("desk", (1.2, 1.6), (0.6, 0.8), 0.75, "wall"),
+    ("shelf", (0.8, 1.2), (0.3, 0.45), 1.9, "wall"),
+    ("cabinet", (0.4, 0.6), (0.4, 0.6), 1.0, "wall"),
+    ("chair", (0.45, 0.55), (0.45, 0.55), 0.9, "free"),
+)
+"""The pieces :func:`furnished_room` draws from, in turn."""
+
+
+def furnished_room(
+    size: tuple[float, float], *, seed: int = 0, corner: tuple[float, float] = (0.0, 0.0), pieces: int = 4
+) -> trimesh.Scene:
+    """A closed room of ``size`` metres (inside) with its inner corner at ``corner``, and
+    ``pieces`` boxes of furniture: desks, shelves (taller than the camera) and cabinets
+    against random walls, chairs standing free in the middle half. A stand-in for a small
+    scanned room, for the protocol's tests and measurements.
+    """
+    rng = np.random.default_rng(seed)
+    sx, sy = size
+    scene = box_room(size=size, crates=False)
+    for k in range(pieces):
+        name, (w0, w1), (d0, d1), height, where = FURNITURE[k % len(FURNITURE)]
+        width, depth = rng.uniform(w0, w1), rng.uniform(d0, d1)
+        if where == "free":
+            extents, (x, y) = (width, depth), rng.uniform(-0.25, 0.25, 2) * (sx, sy)
+        else:
+            wall, along = int(rng.integers(4)), rng.uniform(-0.5, 0.5)
+            if wall < 2:  # north or south: along x
+                extents, x, y = (width, depth), along * (sx - width), (1 - 2 * wall) * (sy - depth) / 2
+            else:  # east or west: along y
+                extents, x, y = (depth, width), (5 - 2 * wall) * (sx - depth) / 2, along * (sy - width)
+        box = solid_box((*extents, height), (x, y, height / 2), (150, 110, 70, 255))
+        box.metadata.update(semantic_id=CRATE, instance_id=100 + k)
+        scene.add_geometry(box, geom_name=f"{name}_{k}")
+    scene.apply_translation((corner[0] + sx / 2, corner[1] + sy / 2, 0.0))
+    return scene

@@ -1,0 +1,153 @@
+"""A floor plan derived from the captures, for a folder that has none drawn by hand.
+
+Two kinds of evidence, on a grid of ``resolution`` (10 cm) over the floor plane:
+
+* **Where the cameras went** (always): the robot stood at every capture, so a disc of
+  ``robot_radius`` around each is free floor, and so is the path between two captures
+  that follow each other in the file less than ``max_step`` apart (a robot's
+  trajectory, recorded in order).
+* **What the cameras saw** (captures with depth): each depth map is back-projected
+  into the world (every ``stride``-th pixel, up to ``max_depth``). Points on the floor
+  (``|z| <= floor_tolerance``) mark cells as seen-free floor; points above it and no
+  higher than the camera plus ``band`` are obstacles, and no cell within ``clearance``
+  of one is free; points within ``band`` of the camera's height (walls, tall furniture)
+  are the occluders the visibility cones stop at, as the mesh workspace takes the
+  mesh's cross-section at camera height. A cell counts as seen if ``min_hits`` points
+  fall in it, so a stray depth pixel marks nothing.
+
+Free floor = (seen floor, small gaps closed, less what is near an obstacle) plus where
+the cameras went. See the package README for what this cannot know.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+import shapely
+from shapely.geometry.base import BaseGeometry
+
+from ssga_core import Camera, InputError, Pose
+from ssga_bench import FloorPlan, grid_polygons
+
+
+@dataclass(frozen=True)
+class DerivedPlan:
+    """A floor plan derived from captures, and what it was derived from."""
+
+    plan: FloorPlan
+    poses: int
+    depth_views: int
+
+    def describe(self) -> str:
+        source = f"{self.poses} capture poses" + (f" and {self.depth_views} depth images" if self.depth_views else " (no depth: no occluders)")
+        return f"floor plan derived from {source}: {self.plan.free.area:.1f} m^2 of free floor, {self.plan.occluders.area:.1f} m^2 of occluders"
+
+
+def floor_plan_from_captures(
+    poses: Sequence[Pose],
+    camera: Camera,
+    depths: Iterable[np.ndarray | None],
+    *,
+    resolution: float = 0.1,
+    robot_radius: float = 0.3,
+    clearance: float = 0.25,
+    max_depth: float = 6.0,
+    max_step: float = 1.0,
+    floor_tolerance: float = 0.1,
+    band: float = 0.3,
+    stride: int = 4,
+    min_hits: int = 2,
+    source: str = "captures",
+) -> DerivedPlan:
+    """Derive where a camera may stand and what blocks sight from capture poses and depth (see the module docstring).
+
+    Args:
+        poses: every capture's pose, in the file's order.
+        camera: the captures' camera.
+        depths: each capture's planar depth in metres (``0`` or non-finite: unknown), or None.
+
+    Raises:
+        InputError: no capture, or a depth map of another shape than the camera's; naming ``source``.
+    """
+    if not poses:
+        raise InputError(f"{source}: no capture poses to derive a floor plan from")
+    xy = np.array([[p.x, p.y] for p in poses], dtype=np.float64)
+    swept = _swept(xy, robot_radius, max_step)
+    camera_height = float(np.median([p.height for p in poses]))
+    floor_points, obstacle_points, occluder_points = [], [], []
+    views = 0
+    for k, (pose, depth) in enumerate(zip(poses, depths, strict=True)):
+        if depth is None:
+            continue
+        if depth.shape != camera.shape:
+            raise InputError(f"{source}: capture {k}'s depth is {depth.shape[1]}x{depth.shape[0]}, its image {camera.width}x{camera.height}")
+        points = _world_points(pose, camera, depth, stride, max_depth)
+        views += 1
+        z = points[:, 2]
+        floor_points.append(points[np.abs(z) <= floor_tolerance, :2])
+        obstacle_points.append(points[(z > floor_tolerance) & (z <= pose.height + band), :2])
+        occluder_points.append(points[np.abs(z - camera_height) <= band, :2])
+    if not views:
+        return DerivedPlan(FloorPlan(free=swept, occluders=shapely.Polygon()), len(poses), 0)
+
+    grid = _Grid.covering(np.concatenate([xy, *floor_points, *obstacle_points]), resolution, margin=robot_radius + clearance)
+    seen_floor = grid.polygons(grid.hits(floor_points) >= min_hits)
+    # Close the gaps between the sampled pixels' footprints far from the camera (a cell or two).
+    seen_floor = seen_floor.buffer(resolution, join_style="mitre").buffer(-resolution, join_style="mitre")
+    obstacles = grid.polygons(grid.hits(obstacle_points) >= min_hits)
+    occluders = grid.polygons(grid.hits(occluder_points) >= min_hits).difference(swept)
+    free = shapely.union(seen_floor.difference(obstacles.buffer(clearance)), swept)
+    # Staircase outlines simplified to the grid's own precision: fewer edges for every visibility ray to test.
+    occluders = occluders.simplify(resolution / 2.0)
+    return DerivedPlan(FloorPlan(free=_polygonal(free), occluders=_polygonal(occluders)), len(poses), views)
+
+
+def _swept(xy: np.ndarray, radius: float, max_step: float) -> BaseGeometry:
+    """Discs around the capture positions, joined where consecutive captures are less than ``max_step`` apart."""
+    parts = list(shapely.points(xy))
+    steps = np.linalg.norm(np.diff(xy, axis=0), axis=1)
+    parts += [shapely.LineString(xy[k : k + 2]) for k in np.flatnonzero((steps > 0) & (steps < max_step))]
+    return shapely.union_all(shapely.buffer(parts, radius, quad_segs=4))
+
+
+def _world_points(pose: Pose, camera: Camera, depth: np.ndarray, stride: int, max_depth: float) -> np.ndarray:
+    """``(N, 3)`` world points of every ``stride``-th pixel with a depth up to ``max_depth``."""
+    uv = camera.pixel_grid()[::stride, ::stride].reshape(-1, 2)
+    d = np.asarray(depth, dtype=np.float32)[::stride, ::stride].reshape(-1)
+    known = np.isfinite(d) & (d > 0) & (d <= max_depth)
+    return pose.to_world(camera.unproject(d[known], uv[known]))
+
+
+@dataclass(frozen=True)
+class _Grid:
+    x0: float
+    y0: float
+    size: float
+    nx: int
+    ny: int
+
+    @classmethod
+    def covering(cls, xy: np.ndarray, size: float, margin: float) -> _Grid:
+        lo, hi = xy.min(axis=0) - margin, xy.max(axis=0) + margin
+        x0, y0 = math.floor(lo[0] / size) * size, math.floor(lo[1] / size) * size
+        return cls(x0, y0, size, math.ceil((hi[0] - x0) / size) + 1, math.ceil((hi[1] - y0) / size) + 1)
+
+    def hits(self, chunks: list[np.ndarray]) -> np.ndarray:
+        """``(ny, nx)`` how many of the points fall in each cell."""
+        xy = np.concatenate(chunks) if chunks else np.zeros((0, 2))
+        col = np.floor((xy[:, 0] - self.x0) / self.size).astype(np.int64)
+        row = np.floor((xy[:, 1] - self.y0) / self.size).astype(np.int64)
+        inside = (col >= 0) & (col < self.nx) & (row >= 0) & (row < self.ny)
+        return np.bincount(row[inside] * self.nx + col[inside], minlength=self.nx * self.ny).reshape(self.ny, self.nx)
+
+    def polygons(self, mask: np.ndarray) -> BaseGeometry:
+        return grid_polygons(mask, (self.x0, self.y0), self.size)
+
+
+def _polygonal(geom: BaseGeometry) -> BaseGeometry:
+    """Only the polygons of ``geom`` (buffers and differences can leave lines and points)."""
+    parts = [p for p in shapely.get_parts(geom) if p.geom_type == "Polygon" and not p.is_empty]
+    return shapely.union_all(parts) if parts else shapely.Polygon()
