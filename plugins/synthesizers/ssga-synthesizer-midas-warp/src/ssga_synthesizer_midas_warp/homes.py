@@ -12,11 +12,15 @@ drawn from the seed: the same views every time.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from ssga_core import View
 
 TRAIN_SEEDS: tuple[int, ...] = tuple(range(2000, 2012))
 CALIBRATION_SEEDS: tuple[int, ...] = (2100, 2101, 2102, 2103)
@@ -68,32 +72,37 @@ def open_home(seed: int):  # -> ssga_bench.Workspace
     return resolve_stage("workspace", {"name": "procedural", "seed": seed, **home_settings(seed)}, current_registry()).create().open()
 
 
-def render_views(seed: int, count: int, *, progress: Callable[[str], None] | None = None) -> Views:
-    """``count`` RGB-D views of home ``seed`` from random standing poses (drawn from the seed)."""
+def standing_views(seed: int, count: int, *, progress: Callable[[str], None] | None = None) -> Iterator[View]:
+    """``count`` rendered views of home ``seed`` (RGB, depth and semantic ids) from random
+    standing poses drawn from the seed: the same views every time. Other plugins' training
+    commands render their views here too."""
     from ssga_core import Pose
 
     workspace = open_home(seed)
     plan = workspace.floor_plan
     xmin, ymin, xmax, ymax = plan.bounds
     rng = np.random.default_rng([seed, count, 7])
-    h, w = workspace.camera.shape
-    rgb = np.empty((count, h, w, 3), dtype=np.uint8)
-    depth = np.empty((count, h, w), dtype=np.float32)
-    poses = np.empty((count, 3), dtype=np.float64)
     i = 0
     while i < count:
         x, y = rng.uniform(xmin, xmax), rng.uniform(ymin, ymax)
         if not plan.can_stand(x, y):
             continue
         yaw = rng.uniform(-np.pi, np.pi)
-        view = workspace.render(Pose(x, y, yaw, workspace.camera_height))
-        rgb[i], poses[i] = view.rgb, (x, y, yaw)
-        assert view.depth is not None
-        depth[i] = view.depth
+        yield workspace.render(Pose(x, y, yaw, workspace.camera_height))
         i += 1
         if progress and i % 100 == 0:
             progress(f"home {seed}: rendered {i}/{count} views")
-    return Views(rgb, depth, poses, np.full(count, seed, dtype=np.int64))
+
+
+def render_views(seed: int, count: int, *, progress: Callable[[str], None] | None = None) -> Views:
+    """``count`` RGB-D views of home ``seed`` from random standing poses (:func:`standing_views`)."""
+    rgb, depth, poses = [], [], []
+    for view in standing_views(seed, count, progress=progress):
+        assert view.depth is not None
+        rgb.append(view.rgb)
+        depth.append(view.depth.astype(np.float32))
+        poses.append((view.pose.x, view.pose.y, view.pose.yaw))
+    return Views(np.stack(rgb), np.stack(depth), np.asarray(poses, dtype=np.float64), np.full(count, seed, dtype=np.int64))
 
 
 def cached_views(folder: Path, seeds: Sequence[int], per_home: int, progress: Callable[[str], None] | None = None) -> Views:

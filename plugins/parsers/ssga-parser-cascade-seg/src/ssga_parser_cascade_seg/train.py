@@ -1,0 +1,310 @@
+"""Train the light scene-parsing network on labelled views of procedural homes, and export it.
+
+    python -m ssga_parser_cascade_seg.train --out runs/cascade-seg-light-balanced \\
+        --export plugins/parsers/ssga-parser-cascade-seg/src/ssga_parser_cascade_seg/weights/procedural-light-ppm_deepsup
+
+Steps (resumable: run the same command again after an interruption and it goes on
+from the last checkpoint in ``--out``):
+
+1. **Views.** ``views_per_home`` views (256 x 256, hfov 90) of every training home
+   (procedural seeds ``train_seeds``, 4000-4011; the benchmark evaluates 0, 1, 2) with
+   their ground-truth semantic ids as class labels (:mod:`.homes`), cached in ``--out``.
+2. **Training from scratch** (CSAIL's initialisation, seeded; no pretrained weights) of
+   the :data:`~.model.LIGHT` layout, as CSAIL trains: cross-entropy of the main head
+   plus ``deep_sup_scale`` (0.4) times that of the deep-supervision head on ``layer3``,
+   unknown pixels ignored, learning rate decayed as ``(1 - step / steps) ** 0.9``. Here
+   the logits are upsampled to the labels' size (CSAIL downsamples the labels to the
+   logits' instead), Adam replaces SGD (no pretrained encoder to keep), and each class
+   weighs its pixel frequency to the power -0.5 (``class_balance``; walls, floors and
+   ceilings cover 90 % of the pixels). Stage 1 runs at 128 x 128 crops of the views
+   rescaled by a random factor in ``scale_range`` (0.5: the whole view; 1: its native
+   scale), where a step costs about a quarter of one at 256 x 256; stage 2 at the
+   views' own 256 x 256, the size the parser runs at. Random horizontal flips and
+   photometric jitter throughout.
+3. **Held-out figures** (:mod:`.evaluate`) on homes 4100-4103, for the seeded
+   initialisation and the result, single-scale (256) and multi-scale; export of
+   ``encoder_epoch_20.pth`` and ``decoder_epoch_20.pth`` (each ``{"network",
+   "classes", "state_dict", "provenance"}``, the release's file names) and
+   ``provenance.json`` (with the files' SHA-256) into ``--export``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import datetime
+import hashlib
+import json
+import platform
+import shlex
+import sys
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+import torch
+import torch.nn.functional as F
+
+from ssga_core import InputError
+from ssga_bench import TrainingRun, atomic_write_bytes, checkpoint_bytes, load_checkpoint, write_json
+from ssga_bench import training_log as log
+from ssga_parser_cascade_seg.classes import PROCEDURAL
+from ssga_parser_cascade_seg.evaluate import evaluate
+from ssga_parser_cascade_seg.homes import HELDOUT_SEEDS, TRAIN_SEEDS, Labelled, cached_labelled
+from ssga_parser_cascade_seg.model import LIGHT, MEAN, STD, SceneParser, init_weights, predict
+from ssga_parser_cascade_seg.plugin import FILES, LIGHT_SCALES
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    """Everything a run depends on (stored in ``--out`` and in the exported weights)."""
+
+    train_seeds: tuple[int, ...] = TRAIN_SEEDS
+    views_per_home: int = 160
+    stages: tuple[tuple[int, int, int], ...] = ((128, 1200, 16), (256, 250, 8))
+    """(crop size, optimiser steps, batch size) of each stage."""
+    lr: tuple[float, ...] = (2e-3, 5e-4)
+    """Adam's initial learning rate in each stage, decayed by CSAIL's poly rule (power 0.9)."""
+    weight_decay: float = 1e-4
+    deep_sup_scale: float = 0.4
+    class_balance: float = 0.5
+    """Each class's pixels weigh its training frequency to the power ``-class_balance`` in the
+    cross-entropy (scaled so the average pixel weighs 1); 0: unweighted, as CSAIL trains. Walls,
+    floors and ceilings cover 90 % of the pixels: unweighted, the light network never predicted a
+    lamp on held-out homes (IoU 0.00, mIoU 0.517; see the README)."""
+    scale_range: tuple[float, float] = (0.5, 1.0)
+    """Stage 1's random rescaling of the views before cropping (later stages run at 1)."""
+    jitter: float = 0.15
+    """Photometric jitter: per image, gain within 1 +- jitter and offset within +- jitter / 2 (of 1), per channel gain within +- jitter / 3."""
+    heldout_seeds: tuple[int, ...] = HELDOUT_SEEDS
+    heldout_views: int = 50
+    checkpoint_every: int = 50
+    seed: int = 0
+
+    def to_json(self) -> dict[str, Any]:
+        return json.loads(json.dumps(dataclasses.asdict(self)))
+
+
+class Run(TrainingRun):
+    """One training run in ``out``: its view caches, checkpoints and timings."""
+
+    config: TrainConfig
+
+    def views(self, seeds: Sequence[int], per_home: int, phase: str) -> Labelled:
+        t = time.perf_counter()
+        views = cached_labelled(self.out / "views", seeds, per_home, progress=log)
+        self.timed(phase, time.perf_counter() - t)
+        return views
+
+    def initial(self) -> SceneParser:
+        return init_weights(SceneParser(LIGHT, len(PROCEDURAL)), self.config.seed)
+
+    def train(self, net: SceneParser, data: Labelled) -> tuple[SceneParser, list[list[float]]]:
+        c = self.config
+        weight = class_weights(class_pixels(data.labels, len(PROCEDURAL)), c.class_balance)
+        state_path = self.out / "state.pt"
+        optimizer = torch.optim.AdamW(net.parameters(), lr=c.lr[0], weight_decay=c.weight_decay)
+        stage, step, history = 0, 0, []
+        if state_path.is_file():
+            state = load_checkpoint(state_path, "training state")
+            net.load_state_dict(state["state_dict"])
+            optimizer.load_state_dict(state["optimizer"])
+            stage, step, history = int(state["stage"]), int(state["step"]), [list(h) for h in state["history"]]
+            log(f"resuming at stage {stage + 1}, step {step}")
+        while stage < len(c.stages):
+            size, steps, batch = c.stages[stage]
+            scales = c.scale_range if stage == 0 else (1.0, 1.0)
+            t0, window = time.perf_counter(), []
+            net.train()
+            while step < steps:
+                lr = c.lr[stage] * (1 - step / steps) ** 0.9
+                for g in optimizer.param_groups:
+                    g["lr"] = lr
+                rng = np.random.default_rng([c.seed, 3, stage, step])
+                x, y = _batch(data, rng, batch, size, scales, c.jitter)
+                loss, accuracy = _step(net, optimizer, x, y, c.deep_sup_scale, weight)
+                step += 1
+                window.append((loss, accuracy))
+                history.append([stage, step, loss])
+                if step % c.checkpoint_every == 0 or step == steps:
+                    elapsed = time.perf_counter() - t0
+                    self.timed(f"stage{stage + 1}", elapsed)
+                    t0 = time.perf_counter()
+                    self._save_state(net, optimizer, stage, step, history)
+                    rate = len(window) * batch / elapsed
+                    eta = (steps - step) * batch / rate
+                    mean_loss, mean_accuracy = np.mean(window, axis=0)
+                    log(
+                        f"stage {stage + 1}/{len(c.stages)} ({size} px) step {step}/{steps}: loss {mean_loss:.4f}, "
+                        f"pixel accuracy {mean_accuracy:.1%}, lr {lr:.2g}, {rate:.1f} images/s, stage ends in {eta / 60:.1f} min"
+                    )
+                    window = []
+            stage, step = stage + 1, 0
+            self._save_state(net, optimizer, stage, step, history)
+        net.eval()
+        return net, history
+
+    def _save_state(self, net, optimizer, stage, step, history) -> None:
+        state = {"state_dict": net.state_dict(), "optimizer": optimizer.state_dict(), "stage": stage, "step": step, "history": history}
+        atomic_write_bytes(self.out / "state.pt", checkpoint_bytes(state))
+
+
+def class_pixels(labels: np.ndarray, num_class: int) -> np.ndarray:
+    """Labelled pixels of each class in ``(N, H, W)`` class maps (``-1`` unknown), counted view by view."""
+    counts = np.zeros(num_class, dtype=np.int64)
+    for view in labels:
+        counts += np.bincount(view[view >= 0].astype(np.intp), minlength=num_class)[:num_class]
+    return counts
+
+
+def class_weights(counts: np.ndarray, balance: float) -> torch.Tensor:
+    """Cross-entropy weights ``frequency ** -balance``, scaled so the average training pixel weighs 1 (absent classes: 0)."""
+    freq = counts / max(int(counts.sum()), 1)
+    w = np.where(counts > 0, np.maximum(freq, 1e-12) ** -balance, 0.0)
+    return torch.tensor(w / max(float((freq * w).sum()), 1e-12), dtype=torch.float32)
+
+
+def _step(net: SceneParser, optimizer: torch.optim.Optimizer, x: torch.Tensor, y: torch.Tensor, deep_sup_scale: float, weight: torch.Tensor | None = None) -> tuple[float, float]:
+    """One optimiser step; returns the loss and the main head's pixel accuracy on the batch."""
+    logits, deepsup = net.forward_train(x)
+    size = y.shape[1:]
+    logits = F.interpolate(logits, size, mode="bilinear", align_corners=False)
+    deepsup = F.interpolate(deepsup, size, mode="bilinear", align_corners=False)
+    loss = F.cross_entropy(logits, y, weight, ignore_index=-1) + deep_sup_scale * F.cross_entropy(deepsup, y, weight, ignore_index=-1)
+    optimizer.zero_grad()
+    loss.backward()
+    optimizer.step()
+    known = y >= 0
+    accuracy = (logits.argmax(1)[known] == y[known]).float().mean().item() if known.any() else 0.0
+    return loss.item(), accuracy
+
+
+def _batch(data: Labelled, rng: np.random.Generator, batch: int, size: int, scales: tuple[float, float], jitter: float) -> tuple[torch.Tensor, torch.Tensor]:
+    """``batch`` random views, rescaled by one random factor, cropped to ``size`` (padded with unknown if smaller), flipped and jittered."""
+    idx = rng.choice(len(data), batch, replace=False)
+    scale = rng.uniform(*scales)
+    images = np.empty((batch, size, size, 3), dtype=np.float32)
+    labels = np.full((batch, size, size), -1, dtype=np.int64)
+    for i, k in enumerate(idx):
+        rgb, lab = data.rgb[k], data.labels[k]
+        h, w = lab.shape
+        sh, sw = max(1, round(h * scale)), max(1, round(w * scale))
+        if (sh, sw) != (h, w):
+            rgb = cv2.resize(rgb, (sw, sh), interpolation=cv2.INTER_AREA)
+            # Nearest label of each new pixel's centre (class indices must not be averaged).
+            rows = np.minimum(((np.arange(sh) + 0.5) * h / sh).astype(np.intp), h - 1)
+            cols = np.minimum(((np.arange(sw) + 0.5) * w / sw).astype(np.intp), w - 1)
+            lab = lab[rows[:, None], cols[None, :]]
+        top, left = rng.integers(0, max(sh - size, 0) + 1), rng.integers(0, max(sw - size, 0) + 1)
+        rgb, lab = rgb[top : top + size, left : left + size], lab[top : top + size, left : left + size]
+        if rng.random() < 0.5:
+            rgb, lab = rgb[:, ::-1], lab[:, ::-1]
+        images[i, : rgb.shape[0], : rgb.shape[1]] = rgb / 255.0
+        labels[i, : lab.shape[0], : lab.shape[1]] = lab
+    gain = rng.uniform(1 - jitter, 1 + jitter, (batch, 1, 1, 1)) * rng.uniform(1 - jitter / 3, 1 + jitter / 3, (batch, 1, 1, 3))
+    images = np.clip(images * gain + rng.uniform(-jitter / 2, jitter / 2, (batch, 1, 1, 1)), 0.0, 1.0)
+    images = (images - np.asarray(MEAN, np.float32)) / np.asarray(STD, np.float32)
+    return torch.from_numpy(np.ascontiguousarray(images.transpose(0, 3, 1, 2), dtype=np.float32)), torch.from_numpy(labels)
+
+
+def export(net: SceneParser, provenance: dict[str, Any], folder: Path) -> Path:
+    """The two release files (with ``provenance``) and ``provenance.json`` into ``folder``; returns ``folder``."""
+    folder.mkdir(parents=True, exist_ok=True)
+    files = {}
+    for name, part in ((FILES["encoder"], net.encoder), (FILES["decoder"], net.decoder)):
+        data = checkpoint_bytes({"network": "light", "classes": "procedural", "state_dict": part.state_dict(), "provenance": provenance})
+        atomic_write_bytes(folder / name, data)
+        files[name] = {"bytes": len(data), "sha256": hashlib.sha256(data).hexdigest()}
+    write_json(folder / "provenance.json", {**provenance, "files": files})
+    return folder
+
+
+def run_training(config: TrainConfig, out: Path, export_to: Path, *, evaluate_heldout: bool = True, argv: Sequence[str] | None = None) -> Path:
+    """Every step of the module docstring; returns the export folder."""
+    _check_vocabulary()
+    run = Run(config, out)
+    started = datetime.datetime.now(datetime.timezone.utc)
+    command = "python -m ssga_parser_cascade_seg.train " + shlex.join(sys.argv[1:] if argv is None else list(argv))
+    data = run.views(config.train_seeds, config.views_per_home, "render")
+    log(f"{len(data)} training views of {len(config.train_seeds)} homes")
+    init = run.initial()
+    net = SceneParser(LIGHT, len(PROCEDURAL))
+    net.load_state_dict(init.state_dict())
+    net, history = run.train(net, data)
+    training_s = sum(run.times.values())
+    figures: dict[str, Any] = {"training_seconds": round(training_s, 1), "seconds": {k: round(v, 1) for k, v in run.times.items()}}
+    figures["loss"] = _loss_summary(history, config)
+    pixels = class_pixels(data.labels, len(PROCEDURAL))
+    figures["train_pixels"] = {name: int(n) for name, n in zip(PROCEDURAL, pixels, strict=True)}
+    figures["class_weights"] = {name: round(float(w), 3) for name, w in zip(PROCEDURAL, class_weights(pixels, config.class_balance), strict=True)}
+    if evaluate_heldout:
+        held = run.views(config.heldout_seeds, config.heldout_views, "render held-out")
+        figures["heldout"] = {}
+        for name, model in (("init", init.eval()), ("trained", net)):
+            for scales_name, scales in (("single-scale", (256,)), ("multi-scale", LIGHT_SCALES)):
+                if name == "init" and scales_name == "multi-scale":
+                    continue
+                result = evaluate(lambda rgb, m=model, s=scales: predict(m, rgb, s).argmax(0).numpy(), held, PROCEDURAL)
+                figures["heldout"][f"{name} {scales_name}"] = result
+                log(f"held-out {name} {scales_name}: mIoU {result['mean_iou']}, pixel accuracy {result['pixel_accuracy']} ({result['views']} views)")
+    provenance = {
+        "what": "light CSAIL scene-parsing network (deep-stem ResNet18-dilated at widths stem 16/16/32, stages 16/32/64/128, "
+        "PPM-deepsup at 64; output stride 8) trained from scratch on ground-truth semantic labels of procedural homes",
+        "network": "light",
+        "classes": list(PROCEDURAL),
+        "command": command,
+        "date": started.isoformat(timespec="seconds"),
+        "train_seeds": list(config.train_seeds),
+        "heldout_seeds": list(config.heldout_seeds),
+        "config": config.to_json(),
+        "figures": figures,
+        "torch": str(torch.__version__),
+        "python": platform.python_version(),
+        "threads": torch.get_num_threads(),
+    }
+    folder = export(net, provenance, export_to)
+    log(f"exported {folder} ({sum((folder / f).stat().st_size for f in FILES.values()) / 1e6:.1f} MB); training took {training_s / 60:.1f} min")
+    return folder
+
+
+def _check_vocabulary() -> None:
+    """The class names the weights will carry are the procedural categories, in id order from 1."""
+    from ssga_workspace_procedural.categories import CATEGORIES
+
+    by_id = sorted(CATEGORIES, key=CATEGORIES.__getitem__)
+    if tuple(by_id) != PROCEDURAL or [CATEGORIES[n] for n in by_id] != list(range(1, len(by_id) + 1)):
+        raise InputError(f"the procedural categories {CATEGORIES} are not classes.PROCEDURAL with ids 1..{len(PROCEDURAL)}; update classes.py")
+
+
+def _loss_summary(history: list[list[float]], config: TrainConfig) -> list[dict[str, Any]]:
+    out = []
+    for stage, (size, steps, batch) in enumerate(config.stages):
+        rows = np.array([h for h in history if int(h[0]) == stage]).reshape(-1, 3)
+        if len(rows):
+            w = max(1, min(50, len(rows) // 4))
+            out.append({"size": size, "steps": steps, "batch": batch, "loss_first": round(float(rows[:w, 2].mean()), 4), "loss_last": round(float(rows[-w:, 2].mean()), 4), "window": w})
+    return out
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m ssga_parser_cascade_seg.train", description=__doc__.split("\n\n")[0])
+    parser.add_argument("--out", type=Path, required=True, help="run folder: view caches, checkpoints (resumable), results")
+    parser.add_argument("--export", type=Path, default=None, help="folder for encoder_epoch_20.pth, decoder_epoch_20.pth and provenance.json (default: --out/weights)")
+    parser.add_argument("--threads", type=int, default=1, help="torch threads (default 1)")
+    parser.add_argument("--no-eval", action="store_true", help="skip the held-out figures")
+    args = parser.parse_args(argv)
+    torch.set_num_threads(args.threads)
+    try:
+        run_training(TrainConfig(), args.out, args.export or args.out / "weights", evaluate_heldout=not args.no_eval, argv=argv)
+    except InputError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 1
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

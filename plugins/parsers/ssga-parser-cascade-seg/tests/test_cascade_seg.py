@@ -1,0 +1,312 @@
+"""The cascade-seg parser: registration, contract, regions from a class map, config, release folders and strict loading, device."""
+
+from __future__ import annotations
+
+import dataclasses
+import pickle
+import re
+
+import numpy as np
+import pytest
+import torch
+from pydantic import ValidationError
+from ssga_parser_cascade_seg.classes import ADE20K, PROCEDURAL
+from ssga_parser_cascade_seg.model import LIGHT, RESNET18DILATED, SceneParser, init_weights
+from ssga_parser_cascade_seg.plugin import FILES, CascadeSeg, CascadeSegConfig, class_regions
+
+from ssga_bench import checkpoint_bytes, validate_experiment
+from ssga_core import Camera, CheckpointError, ConfigError, InputError, MissingWeightsError, Pose, Regions, View, resolve_stage
+from ssga_core.testing import check_parser, check_parser_in_all_orders, make_view
+
+RANDOM = CascadeSegConfig(weights="random", device="cpu")
+
+
+def save_release(folder, net: SceneParser, *, sync_bn: bool = False, batches_tracked: bool = True, wrap: dict | None = None):
+    """``net`` as a release folder: raw state dicts as CSAIL's train.py saves them (or under our wrapper)."""
+    folder.mkdir(parents=True, exist_ok=True)
+    for part, module in (("encoder", net.encoder), ("decoder", net.decoder)):
+        state = {k: v for k, v in module.state_dict().items() if batches_tracked or not k.endswith("num_batches_tracked")}
+        if sync_bn:
+            for key in [k for k in state if k.endswith(".running_mean")]:
+                owner = key[: -len(".running_mean")]
+                state[f"{owner}._tmp_running_mean"] = state[key].clone()
+                state[f"{owner}._tmp_running_var"] = state[f"{owner}.running_var"].clone()
+                state[f"{owner}._running_iter"] = torch.ones(1)
+        obj = state if wrap is None else {**wrap, "state_dict": state}
+        (folder / FILES[part]).write_bytes(checkpoint_bytes(obj))
+    return folder
+
+
+def trained_like(seed: int = 1) -> SceneParser:
+    """A light network whose batch norms hold non-trivial statistics (so a wrong load shows)."""
+    net = init_weights(SceneParser(LIGHT, len(PROCEDURAL)), seed)
+    generator = torch.Generator().manual_seed(seed)
+    with torch.no_grad():
+        for m in net.modules():
+            if isinstance(m, torch.nn.BatchNorm2d):
+                m.running_mean.copy_(torch.rand(m.num_features, generator=generator) * 0.2 - 0.1)
+                m.running_var.copy_(torch.rand(m.num_features, generator=generator) + 0.5)
+    return net.eval()
+
+
+def test_is_installed_and_registered(ssga_installed_registry):
+    entry = ssga_installed_registry.entry("parser", "cascade-seg")
+    assert entry.cls is CascadeSeg and entry.plugin.distribution == "ssga-parser-cascade-seg"
+    assert CascadeSeg.tag() == "SE"
+
+
+def test_meets_the_parser_contract():
+    check_parser(CascadeSeg(RANDOM), make_view(seed=1, size=128))
+    check_parser(CascadeSeg(RANDOM), make_view(seed=2, size=100))
+
+
+def test_runs_in_every_order():
+    assert "SPD" in check_parser_in_all_orders(CascadeSeg(RANDOM), make_view(seed=3, size=96))
+
+
+def test_regions_are_the_connected_pieces_of_each_class():
+    classes = np.full((12, 16), 2, dtype=np.int32)  # class 2 everywhere...
+    classes[1:4, 1:4] = 0  # ...with two pieces of class 0 that touch only at a corner,
+    classes[4:6, 4:9] = 0
+    classes[8:11, 10:15] = 5  # one of class 5,
+    classes[0, 15] = 5  # a one-pixel piece of class 5,
+    classes[10:12, 0:2] = -1  # and pixels without a class.
+    eight = class_regions(classes, PROCEDURAL, min_px=0, connectivity=8)
+    assert eight.categories.tolist() == [0, 2, 5, 5]
+    assert eight.names == ("wall", "ceiling", "sofa", "sofa")
+    np.testing.assert_array_equal(eight.mask(0), classes == 0)  # corner-touching pieces join with 8 neighbours
+    np.testing.assert_array_equal(eight.mask(1), classes == 2)
+    assert {eight.mask(2).sum(), eight.mask(3).sum()} == {15, 1}
+    assert (eight.labels[classes == -1] == -1).all()
+    four = class_regions(classes, PROCEDURAL, min_px=0, connectivity=4)
+    assert four.categories.tolist() == [0, 0, 2, 5, 5] and sorted([four.mask(0).sum(), four.mask(1).sum()]) == [9, 10]
+    big = class_regions(classes, PROCEDURAL, min_px=11, connectivity=4)
+    assert big.categories.tolist() == [2, 5] and (big.labels[classes == 0] == -1).all(), "small pieces are left out, not merged"
+    assert np.bincount(big.labels[big.labels >= 0]).min() >= 11
+    # Numbering, boxes and categories are the core's.
+    core = Regions.from_labels(four.labels, categories=four.categories)
+    np.testing.assert_array_equal(core.labels, four.labels)
+    np.testing.assert_array_equal(core.boxes, four.boxes)
+
+
+def test_scores_are_the_mean_confidence_of_each_region():
+    classes = np.zeros((4, 6), dtype=np.int32)
+    classes[:, 3:] = 1
+    confidence = np.where(classes == 0, 0.9, 0.4).astype(np.float32)
+    confidence[0, 0] = 0.3
+    regions = class_regions(classes, PROCEDURAL, 0, 8, confidence)
+    np.testing.assert_allclose(regions.scores, [(11 * 0.9 + 0.3) / 12, 0.4], rtol=1e-6)
+    assert regions.scores.dtype == np.float32
+    assert class_regions(classes, PROCEDURAL, 0).scores is None
+
+
+def test_parse_gives_class_names_categories_and_scores():
+    parser = CascadeSeg(CascadeSegConfig(weights="random", device="cpu", min_region_px=0))
+    view = make_view(seed=0, size=128)
+    regions = parser.parse(view)
+    classes = parser.classify(view.rgb)
+    assert len(regions) >= 2
+    for k in range(len(regions)):
+        assert (classes[regions.mask(k)] == regions.categories[k]).all()
+        assert regions.names[k] == PROCEDURAL[regions.categories[k]]
+    assert ((regions.labels >= 0) == (classes >= 0)).all(), "with min_region_px = 0 every pixel is in a region"
+    assert ((0 < regions.scores) & (regions.scores <= 1)).all()
+    probs = parser.probabilities(view.rgb)
+    assert probs.shape == (len(PROCEDURAL), 128, 128) and np.allclose(probs.sum(0), 1.0, atol=1e-5)
+
+
+def test_ignored_classes_get_no_region():
+    config = CascadeSegConfig(weights="random", device="cpu", min_region_px=0)
+    view = make_view(seed=0, size=128)
+    every = CascadeSeg(config).parse(view)
+    common = PROCEDURAL[int(np.bincount(every.categories).argmax())]
+    regions = CascadeSeg(config.model_copy(update={"ignore_classes": (common,)})).parse(view)
+    assert common not in regions.names and len(regions) == len(every) - every.names.count(common)
+    classes = CascadeSeg(config).classify(view.rgb)
+    assert (regions.labels[classes == PROCEDURAL.index(common)] == -1).all()
+
+
+def test_the_holes_of_a_synthetic_view_get_no_region():
+    view = make_view(seed=0, size=96)
+    depth = view.depth.copy()
+    depth[:, :40] = 0.0
+    synthetic = dataclasses.replace(view, depth=depth, synthetic=True)
+    config = CascadeSegConfig(weights="random", device="cpu", min_region_px=0)
+    assert (CascadeSeg(config).parse(synthetic).labels[:, :40] == -1).all()
+    kept = CascadeSeg(config.model_copy(update={"drop_holes": False})).parse(synthetic)
+    assert (kept.labels[:, :40] >= 0).all()
+    real = dataclasses.replace(view, depth=depth)  # a real view's missing depth is content
+    assert (CascadeSeg(config).parse(real).labels[:, :40] >= 0).all()
+
+
+def test_views_of_any_size_parse_to_their_own_size():
+    view = View(rgb=np.random.default_rng(0).integers(0, 256, (90, 150, 3), dtype=np.uint8), pose=Pose(0.0, 0.0, 0.0), camera=Camera(width=150, height=90))
+    regions = CascadeSeg(RANDOM).parse(view)
+    assert regions.labels.shape == (90, 150)
+
+
+@pytest.mark.parametrize(
+    ("params", "message"),
+    [
+        ({"network": "resnet101dilated"}, "Input should be 'light', 'resnet18dilated' or 'resnet50dilated'"),
+        ({"classes": "coco"}, "Input should be 'procedural' or 'ade20k'"),
+        ({"image_sizes": []}, "at least 1 item"),
+        ({"image_sizes": [4]}, "greater than or equal to 8"),
+        ({"min_region_px": -1}, "greater than or equal to 0"),
+        ({"connectivity": 6}, "Input should be 4 or 8"),
+        ({"ignore_classes": ["wal"]}, "'wal' is no class of classes = 'procedural'; did you mean 'wall'"),
+        ({"ignore_classes": ["sky"]}, "'sky' is no class of classes = 'procedural'"),
+        ({"weights": ""}, "at least 1 character"),
+        ({"device": "tpu"}, "Input should be 'auto', 'cpu' or 'cuda'"),
+        ({"classes_file": "x"}, "Extra inputs are not permitted"),
+    ],
+)
+def test_bad_config_fails_validation(params, message):
+    with pytest.raises(ValidationError, match=message):
+        CascadeSegConfig(**params)
+
+
+def test_ade20k_class_names_validate_against_their_vocabulary():
+    assert CascadeSegConfig(classes="ade20k", ignore_classes=["sky", "coffee table"]).ignore_classes == ("sky", "coffee table")
+    assert len(ADE20K) == len(set(ADE20K)) == 150 and ADE20K[:4] == ("wall", "building", "sky", "floor") and ADE20K[-1] == "flag"
+
+
+def test_presets_resolve_and_name_the_release_folders(ssga_installed_registry, tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    for preset, params in CascadeSeg.presets.items():
+        assert CascadeSegConfig(**params), preset
+    stage = resolve_stage("parser", {"name": "cascade-seg", "preset": "ade20k-resnet50dilated-ppm_deepsup", "image_sizes": [450]}, ssga_installed_registry)
+    config = stage.config
+    assert (config.network, config.classes, config.weights, config.image_sizes) == ("resnet50dilated", "ade20k", "ade20k-resnet50dilated-ppm_deepsup", (450,))
+    assert CascadeSeg.presets["ade20k-resnet18dilated-ppm_deepsup"]["image_sizes"] == (300, 375, 450, 525, 600)
+    with pytest.raises(MissingWeightsError, match=r"'weights' = 'ade20k-resnet50dilated-ppm_deepsup': no such folder .*encoder_epoch_20\.pth and decoder_epoch_20\.pth"):
+        stage.create()
+    with pytest.raises(ConfigError, match=r"parser\.network: Input should be"):
+        resolve_stage("parser", {"name": "cascade-seg", "network": "vgg"}, ssga_installed_registry)
+    assert all(f.description for f in CascadeSegConfig.model_fields.values())
+
+
+def test_random_weights_caveat_reaches_the_variant_label(ssga_installed_registry):
+    def label(parser: dict) -> str:
+        config = {"variants": ["PD"], "stages": {"parser": {"name": "cascade-seg", **parser}, "descriptor": {"name": "dense-sift"}}}
+        return validate_experiment(config, ssga_installed_registry).variants[0].label
+
+    assert label({"weights": "random"}) == "SIFT-SE (PD) [random weights]"
+    assert label({}) == "SIFT-SE (PD)"
+
+
+@pytest.mark.parametrize("sync_bn", [False, True])
+@pytest.mark.parametrize("batches_tracked", [True, False])
+def test_a_release_folder_loads_with_or_without_batch_norm_bookkeeping(tmp_path, sync_bn, batches_tracked):
+    net = trained_like()
+    folder = save_release(tmp_path / "release", net, sync_bn=sync_bn, batches_tracked=batches_tracked)
+    parser = CascadeSeg(CascadeSegConfig(weights=str(folder), device="cpu"))
+    for mine, theirs in ((parser.net.encoder, net.encoder), (parser.net.decoder, net.decoder)):
+        for key, value in theirs.state_dict().items():
+            if not key.endswith("num_batches_tracked"):
+                assert torch.equal(mine.state_dict()[key], value), key
+    view = make_view(seed=4, size=64)
+    expected = torch.nn.functional.interpolate(net(_input(view)), (64, 64), mode="bilinear", align_corners=False).softmax(1)[0]
+    np.testing.assert_allclose(CascadeSeg(CascadeSegConfig(weights=str(folder), device="cpu", image_sizes=(64,))).probabilities(view.rgb), expected.detach().numpy(), atol=1e-6)
+
+
+def _input(view: View) -> torch.Tensor:
+    from ssga_parser_cascade_seg.model import to_input
+
+    return to_input(view.rgb, view.camera.shape, torch.device("cpu"))
+
+
+def test_a_relative_folder_is_looked_up_in_the_working_directory(tmp_path, monkeypatch):
+    save_release(tmp_path / "mine", trained_like())
+    monkeypatch.chdir(tmp_path)
+    assert CascadeSeg(CascadeSegConfig(weights="mine", device="cpu")).weights_folder() == tmp_path / "mine"
+
+
+def test_a_missing_folder_or_file_is_one_line_naming_the_field(tmp_path):
+    cases = {
+        str(tmp_path / "absent"): "no such folder",
+        str(save_release(tmp_path / "r", trained_like()) / FILES["encoder"]): "is a file; set 'weights' to the folder holding",
+    }
+    partial = tmp_path / "partial"
+    partial.mkdir()
+    (partial / FILES["encoder"]).write_bytes(b"")
+    cases[str(partial)] = "holds no decoder_epoch_20.pth"
+    for weights, message in cases.items():
+        with pytest.raises(MissingWeightsError) as err:
+            CascadeSeg(CascadeSegConfig(weights=weights, device="cpu"))
+        text = str(err.value)
+        assert "\n" not in text and "parser 'cascade-seg': config field 'weights'" in text and message in text, text
+
+
+def test_an_unreadable_file_is_one_line(tmp_path):
+    folder = save_release(tmp_path / "r", trained_like())
+    (folder / FILES["decoder"]).write_bytes(b"not a checkpoint")
+    with pytest.raises(CheckpointError, match=r"decoder_epoch_20\.pth is not a readable checkpoint") as err:
+        CascadeSeg(CascadeSegConfig(weights=str(folder), device="cpu"))
+    assert "\n" not in str(err.value)
+    # weights_only: a file that pickles an object (not tensors) is refused, not executed.
+    import argparse
+
+    torch.save({"state_dict": argparse.Namespace(a=1)}, folder / FILES["decoder"])
+    with pytest.raises(CheckpointError, match="not a readable checkpoint"):
+        CascadeSeg(CascadeSegConfig(weights=str(folder), device="cpu"))
+
+
+@pytest.mark.parametrize(
+    ("edit", "part", "message"),
+    [
+        (lambda s: s.pop("layer4.1.conv2.weight"), "encoder", r"1 missing: layer4\.1\.conv2\.weight"),
+        (lambda s: s.update({"fc.weight": torch.zeros(1000, 128)}), "encoder", r"1 unexpected: fc\.weight"),
+        (lambda s: s.update({"conv1._tmp_running_mean": torch.zeros(16)}), "encoder", r"1 unexpected: conv1\._tmp_running_mean"),
+        (lambda s: s.update({"conv_last.4.weight": torch.zeros(150, 64, 1, 1)}), "decoder", r"1 wrong shape: conv_last\.4\.weight \(150, 64, 1, 1\)"),
+        (lambda s: s.pop("conv_last_deepsup.weight"), "decoder", r"1 missing: conv_last_deepsup\.weight"),
+    ],
+)
+def test_every_other_key_is_strict(tmp_path, edit, part, message):
+    net = trained_like()
+    folder = save_release(tmp_path / "r", net, sync_bn=True)
+    state = torch.load(folder / FILES[part], weights_only=True)
+    edit(state)
+    (folder / FILES[part]).write_bytes(checkpoint_bytes(state))
+    with pytest.raises(CheckpointError) as err:
+        CascadeSeg(CascadeSegConfig(weights=str(folder), device="cpu"))
+    text = str(err.value)
+    assert "\n" not in text and f"{FILES[part]} does not match the {part} of the 'light' network" in text
+    assert re.search(message, text), text
+
+
+def test_a_layout_or_vocabulary_mismatch_is_named(tmp_path):
+    r18 = save_release(tmp_path / "r18", init_weights(SceneParser(RESNET18DILATED, len(ADE20K)), 0))
+    with pytest.raises(CheckpointError, match=r"encoder_epoch_20\.pth does not match the encoder of the 'light' network"):
+        CascadeSeg(CascadeSegConfig(weights=str(r18), device="cpu"))
+    loaded = CascadeSeg(CascadeSegConfig(weights=str(r18), network="resnet18dilated", classes="ade20k", device="cpu", image_sizes=(64,)))
+    assert loaded.net.decoder.conv_last[4].out_channels == 150
+    ours = save_release(tmp_path / "ours", trained_like(), wrap={"network": "light", "classes": "procedural"})
+    with pytest.raises(CheckpointError, match="holds classes = 'procedural'; set classes = 'procedural'"):
+        CascadeSeg(CascadeSegConfig(weights=str(ours), classes="ade20k", device="cpu"))
+    assert len(CascadeSeg(CascadeSegConfig(weights=str(ours), device="cpu")).parse(make_view(size=64))) > 0
+
+
+def test_random_weights_are_the_same_in_every_instance_and_after_pickling():
+    view = make_view(seed=2, size=96)
+    a = CascadeSeg(RANDOM)
+    b = pickle.loads(pickle.dumps(a))
+    np.testing.assert_array_equal(a.classify(view.rgb), b.classify(view.rgb))
+    assert CascadeSeg.caveat(RANDOM) == "random weights" and CascadeSeg.caveat(CascadeSegConfig()) == ""
+
+
+def test_a_bad_image_is_refused():
+    with pytest.raises(InputError, match=r"expected an \(H, W, 3\) uint8 RGB image"):
+        CascadeSeg(RANDOM).probabilities(np.zeros((8, 8), dtype=np.uint8))
+
+
+def test_runs_on_the_cpu_and_on_cuda_alike():
+    view = make_view(size=96)
+    cpu = CascadeSeg(CascadeSegConfig(weights="random", device="cpu"))
+    assert next(cpu.net.parameters()).device.type == "cpu"
+    if not torch.cuda.is_available():
+        with pytest.raises(InputError, match="no CUDA device"):
+            CascadeSeg(CascadeSegConfig(weights="random", device="cuda"))
+        return
+    gpu = CascadeSeg(CascadeSegConfig(weights="random", device="cuda"))
+    np.testing.assert_allclose(cpu.probabilities(view.rgb), gpu.probabilities(view.rgb), atol=1e-4)
