@@ -30,8 +30,15 @@ _EXPORTS = {
     "load_strict": "ssga_bench.learned",
     "checkpoint_bytes": "ssga_bench.learned",
     "resolve_device": "ssga_bench.learned",
-    "TrainingRun": "ssga_bench.learned",
-    "training_log": "ssga_bench.learned",
+    # training commands of learned plugins: the staged resumable loop, provenance, export, CLI
+    "TrainingRun": "ssga_bench.training",
+    "training_log": "ssga_bench.training",
+    "training_main": "ssga_bench.training",
+    "training_provenance": "ssga_bench.training",
+    "command_line": "ssga_bench.training",
+    "export_checkpoint": "ssga_bench.training",
+    "cosine_lr": "ssga_bench.training",
+    "poly_lr": "ssga_bench.training",
     # files: atomic writes, one-line read errors
     "OutputError": "ssga_bench.io",
     "atomic_write_bytes": "ssga_bench.io",

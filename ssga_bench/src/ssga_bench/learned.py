@@ -147,38 +147,3 @@ def checkpoint_bytes(obj: Any) -> bytes:
     buffer = io.BytesIO()
     torch.save(obj, buffer)
     return buffer.getvalue()
-
-
-def training_log(message: str) -> None:
-    """One timestamped progress line of a training command."""
-    import datetime
-
-    print(f"[{datetime.datetime.now().strftime('%H:%M:%S')}] {message}", flush=True)
-
-
-class TrainingRun:
-    """A training command's folder ``out``: its config (a rerun with another one is refused,
-    so a resumed run never mixes two) and the seconds spent per phase, kept across resumes.
-
-    Learned plugins subclass it with their caches and checkpoints.
-    """
-
-    def __init__(self, config: Any, out: Path) -> None:
-        from ssga_bench.io import read_json, write_json
-
-        self.config, self.out = config, out
-        out.mkdir(parents=True, exist_ok=True)
-        stored = out / "config.json"
-        if stored.is_file():
-            if read_json(stored) != config.to_json():
-                raise InputError(f"{out}: holds a run of another config ({stored}); use a new --out or delete it")
-        else:
-            write_json(stored, config.to_json())
-        times = out / "times.json"
-        self.times: dict[str, float] = read_json(times) if times.is_file() else {}
-
-    def timed(self, phase: str, seconds: float) -> None:
-        from ssga_bench.io import write_json
-
-        self.times[phase] = self.times.get(phase, 0.0) + seconds
-        write_json(self.out / "times.json", self.times)

@@ -29,13 +29,9 @@ on from the last checkpoint in ``--out``):
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import datetime
-import hashlib
 import json
-import platform
-import shlex
 import sys
 import time
 from collections.abc import Sequence
@@ -48,13 +44,14 @@ import torch
 import torch.nn.functional as F
 
 from ssga_core import InputError
-from ssga_bench import TrainingRun, atomic_write_bytes, checkpoint_bytes, load_checkpoint, write_json
+from ssga_bench import TrainingRun, atomic_write_bytes, checkpoint_bytes, export_checkpoint, load_checkpoint, training_main, training_provenance
 from ssga_bench import training_log as log
 from ssga_descriptor_pnv.evaluate import HeldOut, evaluate, render_heldout
 from ssga_descriptor_pnv.homes import HOME, Places, relations, render_places
 from ssga_descriptor_pnv.layout import LIGHT_WIDTHS
 from ssga_descriptor_pnv.model import PatchNetVLAD, preprocess
 
+MODULE = "ssga_descriptor_pnv.train"
 EXPORT_NAME = "pnv-light"
 
 
@@ -153,57 +150,25 @@ class Run(TrainingRun):
 
     # ------------------------------------------------------------------ training
 
-    def train(self, net: PatchNetVLAD, data: Places) -> tuple[PatchNetVLAD, list[list[float]]]:
-        c = self.config
-        state_path = self.out / "state.pt"
-        optimizer = torch.optim.Adam(net.parameters(), lr=c.lr[0])
-        stage, step, history = 0, 0, []
-        if state_path.is_file():
-            state = load_checkpoint(state_path, "training state")
-            net.load_state_dict(state["state_dict"])
-            optimizer.load_state_dict(state["optimizer"])
-            stage, step, history = int(state["stage"]), int(state["step"]), [list(h) for h in state["history"]]
-            log(f"resuming at stage {stage + 1}, step {step}")
-        by_home = {h: np.unique(data.place[data.home == h]) for h in c.train_seeds}
-        first_view = np.r_[0, np.flatnonzero(data.place[1:] != data.place[:-1]) + 1]  # index of each place's first view
-        place_start = dict(zip(data.place[first_view], first_view))
-        while stage < len(c.stages):
-            size, steps = c.stages[stage]
-            for g in optimizer.param_groups:
-                g["lr"] = c.lr[stage]
-            images = _resized(data.rgb, size) if step < steps else None
-            t0, window = time.perf_counter(), []
-            net.train()
-            while step < steps:
-                rng = np.random.default_rng([c.seed, 2, stage, step])
-                homes = rng.choice(c.train_seeds, c.homes_per_batch, replace=False)
-                per_home = c.places_per_batch // c.homes_per_batch
-                places = np.concatenate([rng.choice(by_home[h], per_home, replace=False) for h in homes])
-                idx = np.stack([[place_start[p], place_start[p] + 1] for p in places]).ravel()
-                loss, active = _step(net, optimizer, images[idx], data, idx, c, rng)
-                step += 1
-                window.append((loss, active))
-                history.append([stage, step, loss, active])
-                if step % c.checkpoint_every == 0 or step == steps:
-                    elapsed = time.perf_counter() - t0
-                    self.timed(f"stage{stage + 1}", elapsed)
-                    t0 = time.perf_counter()
-                    self._save_state(net, optimizer, stage, step, history)
-                    mean_loss, mean_active = np.mean(window, axis=0)
-                    rate = len(window) * len(idx) / elapsed
-                    eta = (steps - step) * len(idx) / rate
-                    log(
-                        f"stage {stage + 1}/{len(c.stages)} ({size} px) step {step}/{steps}: loss {mean_loss:.4f}, "
-                        f"violating triplets {mean_active:.0%}, {rate:.1f} images/s, stage ends in {eta / 60:.1f} min"
-                    )
-                    window = []
-            stage, step = stage + 1, 0
-            self._save_state(net, optimizer, stage, step, history)
-        return net, history
+    metrics = ("loss", "violating_triplets")
 
-    def _save_state(self, net, optimizer, stage, step, history) -> None:
-        state = {"state_dict": net.state_dict(), "optimizer": optimizer.state_dict(), "stage": stage, "step": step, "history": history}
-        atomic_write_bytes(self.out / "state.pt", checkpoint_bytes(state))
+    def batch_size(self, stage: int) -> int:
+        return 2 * (self.config.places_per_batch // self.config.homes_per_batch) * self.config.homes_per_batch
+
+    def begin_stage(self, stage: int, data: Places) -> tuple[Places, np.ndarray, dict, dict]:
+        """The views at the stage's size, and where each home's places and each place's two views are."""
+        by_home = {h: np.unique(data.place[data.home == h]) for h in self.config.train_seeds}
+        first_view = np.r_[0, np.flatnonzero(data.place[1:] != data.place[:-1]) + 1]  # index of each place's first view
+        return data, _resized(data.rgb, self.config.stages[stage][0]), by_home, dict(zip(data.place[first_view], first_view))
+
+    def train_step(self, net, optimizer, stage, data, rng) -> tuple[float, float]:
+        c = self.config
+        places_data, images, by_home, place_start = data
+        homes = rng.choice(c.train_seeds, c.homes_per_batch, replace=False)
+        per_home = c.places_per_batch // c.homes_per_batch
+        places = np.concatenate([rng.choice(by_home[h], per_home, replace=False) for h in homes])
+        idx = np.stack([[place_start[p], place_start[p] + 1] for p in places]).ravel()
+        return _step(net, optimizer, images[idx], places_data, idx, c, rng)
 
     # ------------------------------------------------------------------ WPCA
 
@@ -299,29 +264,8 @@ def _step(net: PatchNetVLAD, optimizer, rgb: np.ndarray, data: Places, idx: np.n
     return loss.item(), (terms > 0).float().mean().item()
 
 
-def export(net: PatchNetVLAD, provenance: dict[str, Any], folder: Path) -> Path:
-    path = folder / f"{EXPORT_NAME}.pt"
-    data = checkpoint_bytes({"num_pcs": net.num_pcs, "state_dict": net.state_dict(), "provenance": provenance})
-    atomic_write_bytes(path, data)
-    write_json(folder / f"{EXPORT_NAME}.json", {**provenance, "file": path.name, "bytes": len(data), "sha256": hashlib.sha256(data).hexdigest()})
-    return path
-
-
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m ssga_descriptor_pnv.train", description=__doc__.split("\n\n")[0])
-    parser.add_argument("--out", type=Path, required=True, help="run folder: view caches, checkpoints (resumable), results")
-    parser.add_argument("--export", type=Path, default=None, help="folder for pnv-light.pt and pnv-light.json (default: --out)")
-    parser.add_argument("--threads", type=int, default=1, help="torch threads (default 1)")
-    parser.add_argument("--no-eval", action="store_true", help="skip the held-out figures")
-    args = parser.parse_args(argv)
-    torch.set_num_threads(args.threads)
-    config = TrainConfig()
-    try:
-        run_training(config, args.out, args.export or args.out, evaluate_heldout=not args.no_eval, argv=argv)
-    except InputError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 1
-    return 0
+    return training_main(MODULE, __doc__, run_training, TrainConfig(), argv, exports=f"{EXPORT_NAME}.pt and {EXPORT_NAME}.json")
 
 
 def run_training(config: TrainConfig, out: Path, export_to: Path, *, evaluate_heldout: bool = True, argv: Sequence[str] | None = None) -> Path:
@@ -333,49 +277,25 @@ def run_training(config: TrainConfig, out: Path, export_to: Path, *, evaluate_he
     init = run.initial(data)
     net = PatchNetVLAD(config.widths, config.clusters, config.num_pcs)
     net.load_state_dict(init.state_dict())
-    net, history = run.train(net, data)
+    net, history = run.train(net, torch.optim.Adam(net.parameters(), lr=config.lr[0]), data)
     wpca = run.fit_wpca(net, data)
-    training_s = sum(run.times.values())
-    figures: dict[str, Any] = {"training_seconds": round(training_s, 1), "seconds": {k: round(v, 1) for k, v in run.times.items()}, "wpca": wpca}
-    figures["loss"] = _loss_summary(history, config)
+    figures = {**run.figures(history), "wpca": wpca}
     if evaluate_heldout:
         t = time.perf_counter()
         heldout = render_heldout(config.heldout)
         figures["heldout"] = {"init": evaluate(init, heldout, config.heldout, wpca=False), "trained": evaluate(net, heldout, config.heldout)}
         figures["heldout_seconds"] = round(time.perf_counter() - t, 1)
         log(f"held-out recall, initialisation: {figures['heldout']['init']}; trained: {figures['heldout']['trained']}")
-    command = "python -m ssga_descriptor_pnv.train " + shlex.join(sys.argv[1:] if argv is None else list(argv))
-    provenance = {
-        "what": "light Patch-NetVLAD (VGG16 layout, block widths 16/32/64/128/128) trained on procedural homes",
-        "command": command,
-        "date": started.isoformat(timespec="seconds"),
-        "train_seeds": list(config.train_seeds),
-        "heldout_seeds": list(config.heldout.seeds),
-        "home": HOME,
-        "config": config.to_json(),
-        "figures": figures,
-        "torch": str(torch.__version__),
-        "python": platform.python_version(),
-        "threads": torch.get_num_threads(),
-    }
-    path = export(net, provenance, export_to)
-    log(f"exported {path} ({path.stat().st_size / 1e6:.1f} MB); training took {training_s / 60:.1f} min")
+    provenance = training_provenance(
+        "light Patch-NetVLAD (VGG16 layout, block widths 16/32/64/128/128) trained on procedural homes",
+        MODULE, argv, started, config, figures,
+        train_seeds=list(config.train_seeds),
+        heldout_seeds=list(config.heldout.seeds),
+        home=HOME,
+    )
+    path = export_checkpoint(export_to, EXPORT_NAME, {"num_pcs": net.num_pcs, "state_dict": net.state_dict()}, provenance)
+    log(f"exported {path} ({path.stat().st_size / 1e6:.1f} MB); training took {figures['training_seconds'] / 60:.1f} min")
     return path
-
-
-def _loss_summary(history: list[list[float]], config: TrainConfig) -> list[dict[str, Any]]:
-    out = []
-    for stage, (size, steps) in enumerate(config.stages):
-        rows = np.array([h for h in history if int(h[0]) == stage]).reshape(-1, 4)
-        if len(rows):
-            w = max(1, min(50, len(rows) // 4))
-            out.append({
-                "size": size, "steps": steps,
-                "loss_first": round(float(rows[:w, 2].mean()), 4), "loss_last": round(float(rows[-w:, 2].mean()), 4),
-                "violating_first": round(float(rows[:w, 3].mean()), 3), "violating_last": round(float(rows[-w:, 3].mean()), 3),
-                "window": w,
-            })
-    return out
 
 
 if __name__ == "__main__":

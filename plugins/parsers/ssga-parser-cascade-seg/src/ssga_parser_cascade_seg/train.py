@@ -30,13 +30,10 @@ from the last checkpoint in ``--out``):
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import datetime
 import hashlib
 import json
-import platform
-import shlex
 import sys
 import time
 from collections.abc import Sequence
@@ -50,13 +47,15 @@ import torch
 import torch.nn.functional as F
 
 from ssga_core import InputError
-from ssga_bench import TrainingRun, atomic_write_bytes, checkpoint_bytes, load_checkpoint, write_json
+from ssga_bench import TrainingRun, atomic_write_bytes, checkpoint_bytes, poly_lr, training_main, training_provenance, write_json
 from ssga_bench import training_log as log
 from ssga_parser_cascade_seg.classes import PROCEDURAL
 from ssga_parser_cascade_seg.evaluate import evaluate
 from ssga_parser_cascade_seg.homes import HELDOUT_SEEDS, TRAIN_SEEDS, Labelled, cached_labelled
 from ssga_parser_cascade_seg.model import LIGHT, MEAN, STD, SceneParser, init_weights, predict
 from ssga_parser_cascade_seg.plugin import FILES, LIGHT_SCALES
+
+MODULE = "ssga_parser_cascade_seg.train"
 
 
 @dataclass(frozen=True)
@@ -100,57 +99,24 @@ class Run(TrainingRun):
         self.timed(phase, time.perf_counter() - t)
         return views
 
+    metrics = ("loss", "pixel_accuracy")
+    rng_stream = 3
+
     def initial(self) -> SceneParser:
         return init_weights(SceneParser(LIGHT, len(PROCEDURAL)), self.config.seed)
 
-    def train(self, net: SceneParser, data: Labelled) -> tuple[SceneParser, list[list[float]]]:
-        c = self.config
-        weight = class_weights(class_pixels(data.labels, len(PROCEDURAL)), c.class_balance)
-        state_path = self.out / "state.pt"
-        optimizer = torch.optim.AdamW(net.parameters(), lr=c.lr[0], weight_decay=c.weight_decay)
-        stage, step, history = 0, 0, []
-        if state_path.is_file():
-            state = load_checkpoint(state_path, "training state")
-            net.load_state_dict(state["state_dict"])
-            optimizer.load_state_dict(state["optimizer"])
-            stage, step, history = int(state["stage"]), int(state["step"]), [list(h) for h in state["history"]]
-            log(f"resuming at stage {stage + 1}, step {step}")
-        while stage < len(c.stages):
-            size, steps, batch = c.stages[stage]
-            scales = c.scale_range if stage == 0 else (1.0, 1.0)
-            t0, window = time.perf_counter(), []
-            net.train()
-            while step < steps:
-                lr = c.lr[stage] * (1 - step / steps) ** 0.9
-                for g in optimizer.param_groups:
-                    g["lr"] = lr
-                rng = np.random.default_rng([c.seed, 3, stage, step])
-                x, y = _batch(data, rng, batch, size, scales, c.jitter)
-                loss, accuracy = _step(net, optimizer, x, y, c.deep_sup_scale, weight)
-                step += 1
-                window.append((loss, accuracy))
-                history.append([stage, step, loss])
-                if step % c.checkpoint_every == 0 or step == steps:
-                    elapsed = time.perf_counter() - t0
-                    self.timed(f"stage{stage + 1}", elapsed)
-                    t0 = time.perf_counter()
-                    self._save_state(net, optimizer, stage, step, history)
-                    rate = len(window) * batch / elapsed
-                    eta = (steps - step) * batch / rate
-                    mean_loss, mean_accuracy = np.mean(window, axis=0)
-                    log(
-                        f"stage {stage + 1}/{len(c.stages)} ({size} px) step {step}/{steps}: loss {mean_loss:.4f}, "
-                        f"pixel accuracy {mean_accuracy:.1%}, lr {lr:.2g}, {rate:.1f} images/s, stage ends in {eta / 60:.1f} min"
-                    )
-                    window = []
-            stage, step = stage + 1, 0
-            self._save_state(net, optimizer, stage, step, history)
-        net.eval()
-        return net, history
+    def begin_stage(self, stage: int, data: Labelled) -> tuple[Labelled, torch.Tensor]:
+        return data, class_weights(class_pixels(data.labels, len(PROCEDURAL)), self.config.class_balance)
 
-    def _save_state(self, net, optimizer, stage, step, history) -> None:
-        state = {"state_dict": net.state_dict(), "optimizer": optimizer.state_dict(), "stage": stage, "step": step, "history": history}
-        atomic_write_bytes(self.out / "state.pt", checkpoint_bytes(state))
+    def learning_rate(self, stage: int, step: int, steps: int) -> float:
+        return poly_lr(self.config.lr[stage], step, steps)
+
+    def train_step(self, net, optimizer, stage, data, rng) -> tuple[float, float]:
+        c = self.config
+        views, weight = data
+        size, _, batch = c.stages[stage]
+        x, y = _batch(views, rng, batch, size, c.scale_range if stage == 0 else (1.0, 1.0), c.jitter)
+        return _step(net, optimizer, x, y, c.deep_sup_scale, weight)
 
 
 def class_pixels(labels: np.ndarray, num_class: int) -> np.ndarray:
@@ -228,16 +194,13 @@ def run_training(config: TrainConfig, out: Path, export_to: Path, *, evaluate_he
     _check_vocabulary()
     run = Run(config, out)
     started = datetime.datetime.now(datetime.timezone.utc)
-    command = "python -m ssga_parser_cascade_seg.train " + shlex.join(sys.argv[1:] if argv is None else list(argv))
     data = run.views(config.train_seeds, config.views_per_home, "render")
     log(f"{len(data)} training views of {len(config.train_seeds)} homes")
     init = run.initial()
     net = SceneParser(LIGHT, len(PROCEDURAL))
     net.load_state_dict(init.state_dict())
-    net, history = run.train(net, data)
-    training_s = sum(run.times.values())
-    figures: dict[str, Any] = {"training_seconds": round(training_s, 1), "seconds": {k: round(v, 1) for k, v in run.times.items()}}
-    figures["loss"] = _loss_summary(history, config)
+    net, history = run.train(net, torch.optim.AdamW(net.parameters(), lr=config.lr[0], weight_decay=config.weight_decay), data)
+    figures = run.figures(history)
     pixels = class_pixels(data.labels, len(PROCEDURAL))
     figures["train_pixels"] = {name: int(n) for name, n in zip(PROCEDURAL, pixels, strict=True)}
     figures["class_weights"] = {name: round(float(w), 3) for name, w in zip(PROCEDURAL, class_weights(pixels, config.class_balance), strict=True)}
@@ -251,23 +214,17 @@ def run_training(config: TrainConfig, out: Path, export_to: Path, *, evaluate_he
                 result = evaluate(lambda rgb, m=model, s=scales: predict(m, rgb, s).argmax(0).numpy(), held, PROCEDURAL)
                 figures["heldout"][f"{name} {scales_name}"] = result
                 log(f"held-out {name} {scales_name}: mIoU {result['mean_iou']}, pixel accuracy {result['pixel_accuracy']} ({result['views']} views)")
-    provenance = {
-        "what": "light CSAIL scene-parsing network (deep-stem ResNet18-dilated at widths stem 16/16/32, stages 16/32/64/128, "
+    provenance = training_provenance(
+        "light CSAIL scene-parsing network (deep-stem ResNet18-dilated at widths stem 16/16/32, stages 16/32/64/128, "
         "PPM-deepsup at 64; output stride 8) trained from scratch on ground-truth semantic labels of procedural homes",
-        "network": "light",
-        "classes": list(PROCEDURAL),
-        "command": command,
-        "date": started.isoformat(timespec="seconds"),
-        "train_seeds": list(config.train_seeds),
-        "heldout_seeds": list(config.heldout_seeds),
-        "config": config.to_json(),
-        "figures": figures,
-        "torch": str(torch.__version__),
-        "python": platform.python_version(),
-        "threads": torch.get_num_threads(),
-    }
+        MODULE, argv, started, config, figures,
+        network="light",
+        classes=list(PROCEDURAL),
+        train_seeds=list(config.train_seeds),
+        heldout_seeds=list(config.heldout_seeds),
+    )
     folder = export(net, provenance, export_to)
-    log(f"exported {folder} ({sum((folder / f).stat().st_size for f in FILES.values()) / 1e6:.1f} MB); training took {training_s / 60:.1f} min")
+    log(f"exported {folder} ({sum((folder / f).stat().st_size for f in FILES.values()) / 1e6:.1f} MB); training took {figures['training_seconds'] / 60:.1f} min")
     return folder
 
 
@@ -280,30 +237,11 @@ def _check_vocabulary() -> None:
         raise InputError(f"the procedural categories {CATEGORIES} are not classes.PROCEDURAL with ids 1..{len(PROCEDURAL)}; update classes.py")
 
 
-def _loss_summary(history: list[list[float]], config: TrainConfig) -> list[dict[str, Any]]:
-    out = []
-    for stage, (size, steps, batch) in enumerate(config.stages):
-        rows = np.array([h for h in history if int(h[0]) == stage]).reshape(-1, 3)
-        if len(rows):
-            w = max(1, min(50, len(rows) // 4))
-            out.append({"size": size, "steps": steps, "batch": batch, "loss_first": round(float(rows[:w, 2].mean()), 4), "loss_last": round(float(rows[-w:, 2].mean()), 4), "window": w})
-    return out
-
-
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m ssga_parser_cascade_seg.train", description=__doc__.split("\n\n")[0])
-    parser.add_argument("--out", type=Path, required=True, help="run folder: view caches, checkpoints (resumable), results")
-    parser.add_argument("--export", type=Path, default=None, help="folder for encoder_epoch_20.pth, decoder_epoch_20.pth and provenance.json (default: --out/weights)")
-    parser.add_argument("--threads", type=int, default=1, help="torch threads (default 1)")
-    parser.add_argument("--no-eval", action="store_true", help="skip the held-out figures")
-    args = parser.parse_args(argv)
-    torch.set_num_threads(args.threads)
-    try:
-        run_training(TrainConfig(), args.out, args.export or args.out / "weights", evaluate_heldout=not args.no_eval, argv=argv)
-    except InputError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 1
-    return 0
+    return training_main(
+        MODULE, __doc__, run_training, TrainConfig(), argv,
+        exports="encoder_epoch_20.pth, decoder_epoch_20.pth and provenance.json", default_export=lambda out: out / "weights",
+    )
 
 
 if __name__ == "__main__":

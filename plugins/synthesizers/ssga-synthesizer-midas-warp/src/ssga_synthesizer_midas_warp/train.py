@@ -31,14 +31,9 @@ from the last checkpoint in ``--out``):
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import datetime
-import hashlib
 import json
-import math
-import platform
-import shlex
 import sys
 import time
 from collections.abc import Sequence
@@ -51,8 +46,7 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from ssga_core import InputError
-from ssga_bench import TrainingRun, atomic_write_bytes, checkpoint_bytes, load_checkpoint, write_json
+from ssga_bench import TrainingRun, atomic_write_bytes, checkpoint_bytes, command_line, cosine_lr, export_checkpoint, training_main, training_provenance
 from ssga_bench import training_log as log
 from ssga_synthesizer_midas_warp.calibrate import calibrate
 from ssga_synthesizer_midas_warp.calibration import calibration_path, sha256_file
@@ -60,6 +54,7 @@ from ssga_synthesizer_midas_warp.evaluate import evaluate_network
 from ssga_synthesizer_midas_warp.homes import CALIBRATION_SEEDS, HELDOUT_SEEDS, TRAIN_SEEDS, Views, cached_views, home_settings
 from ssga_synthesizer_midas_warp.model import LIGHT, MEAN, STD, MidasNet, init_weights
 
+MODULE = "ssga_synthesizer_midas_warp.train"
 EXPORT_NAME = "midas-light"
 
 
@@ -141,6 +136,7 @@ class Run(TrainingRun):
     """One training run in ``out``: its caches, checkpoints and timings."""
 
     config: TrainConfig
+    metrics = ("loss", "positive_output")
 
     def views(self, seeds: Sequence[int], per_home: int, phase: str) -> Views:
         t = time.perf_counter()
@@ -155,60 +151,26 @@ class Run(TrainingRun):
             atomic_write_bytes(path, checkpoint_bytes({"state_dict": net.state_dict()}))
         return net
 
-    def train(self, net: MidasNet, data: Views) -> tuple[MidasNet, list[list[float]]]:
-        c = self.config
-        state_path = self.out / "state.pt"
-        optimizer = torch.optim.Adam(net.parameters(), lr=c.lr[0])
-        stage, step, history = 0, 0, []
-        if state_path.is_file():
-            state = load_checkpoint(state_path, "training state")
-            net.load_state_dict(state["state_dict"])
-            optimizer.load_state_dict(state["optimizer"])
-            stage, step, history = int(state["stage"]), int(state["step"]), [list(h) for h in state["history"]]
-            log(f"resuming at stage {stage + 1}, step {step}")
+    def begin_stage(self, stage: int, data: Views) -> tuple[np.ndarray, np.ndarray]:
         inverse = np.where(data.depth > 0, 1.0 / np.maximum(data.depth, 1e-6), 0.0).astype(np.float32)
-        while stage < len(c.stages):
-            size, steps, batch = c.stages[stage]
-            images, targets = (_resized(data.rgb, inverse, size) if step < steps else (None, None))
-            t0, window = time.perf_counter(), []
-            net.train()
-            while step < steps:
-                lr = c.lr[stage] * (0.1 + 0.9 * 0.5 * (1 + math.cos(math.pi * step / steps)))
-                for g in optimizer.param_groups:
-                    g["lr"] = lr
-                rng = np.random.default_rng([c.seed, 2, stage, step])
-                idx = rng.choice(len(images), batch, replace=False)
-                x, y = _batch(images[idx], targets[idx], rng, c.jitter)
-                pred = net(x, raw=True)
-                loss = ssi_loss(pred, y, y > 0, c.alpha, c.scales, c.trim) + c.positive * F.relu(-pred).mean()
-                optimizer.zero_grad()
-                loss.backward()
-                torch.nn.utils.clip_grad_norm_(net.parameters(), c.grad_clip)
-                optimizer.step()
-                step += 1
-                window.append((loss.item(), (pred > 0).float().mean().item()))
-                history.append([stage, step, loss.item()])
-                if step % c.checkpoint_every == 0 or step == steps:
-                    elapsed = time.perf_counter() - t0
-                    self.timed(f"stage{stage + 1}", elapsed)
-                    t0 = time.perf_counter()
-                    self._save_state(net, optimizer, stage, step, history)
-                    rate = len(window) * batch / elapsed
-                    eta = (steps - step) * batch / rate
-                    mean_loss, positive = np.mean(window, axis=0)
-                    log(
-                        f"stage {stage + 1}/{len(c.stages)} ({size} px) step {step}/{steps}: loss {mean_loss:.4f}, "
-                        f"output > 0 at {positive:.0%} of pixels, lr {lr:.2g}, {rate:.1f} images/s, stage ends in {eta / 60:.1f} min"
-                    )
-                    window = []
-            stage, step = stage + 1, 0
-            self._save_state(net, optimizer, stage, step, history)
-        net.eval()
-        return net, history
+        return _resized(data.rgb, inverse, self.config.stages[stage][0])
 
-    def _save_state(self, net, optimizer, stage, step, history) -> None:
-        state = {"state_dict": net.state_dict(), "optimizer": optimizer.state_dict(), "stage": stage, "step": step, "history": history}
-        atomic_write_bytes(self.out / "state.pt", checkpoint_bytes(state))
+    def learning_rate(self, stage: int, step: int, steps: int) -> float:
+        return cosine_lr(self.config.lr[stage], step, steps)
+
+    def train_step(self, net, optimizer, stage, data, rng) -> tuple[float, float]:
+        """One step; returns the loss and the share of output pixels above zero (the hinge's aim)."""
+        c = self.config
+        images, targets = data
+        idx = rng.choice(len(images), c.stages[stage][2], replace=False)
+        x, y = _batch(images[idx], targets[idx], rng, c.jitter)
+        pred = net(x, raw=True)
+        loss = ssi_loss(pred, y, y > 0, c.alpha, c.scales, c.trim) + c.positive * F.relu(-pred).mean()
+        optimizer.zero_grad()
+        loss.backward()
+        torch.nn.utils.clip_grad_norm_(net.parameters(), c.grad_clip)
+        optimizer.step()
+        return loss.item(), (pred > 0).float().mean().item()
 
 
 def _resized(rgb: np.ndarray, inverse: np.ndarray, size: int) -> tuple[np.ndarray, np.ndarray]:
@@ -237,44 +199,27 @@ def _batch(rgb: np.ndarray, inverse: np.ndarray, rng: np.random.Generator, jitte
     return torch.from_numpy(np.ascontiguousarray(x.transpose(0, 3, 1, 2), dtype=np.float32)), torch.from_numpy(np.ascontiguousarray(y))
 
 
-def export(net: MidasNet, provenance: dict[str, Any], folder: Path) -> Path:
-    folder.mkdir(parents=True, exist_ok=True)
-    path = folder / f"{EXPORT_NAME}.pt"
-    data = checkpoint_bytes({"network": "light", "state_dict": net.state_dict(), "provenance": provenance})
-    atomic_write_bytes(path, data)
-    write_json(folder / f"{EXPORT_NAME}.json", {**provenance, "file": path.name, "bytes": len(data), "sha256": hashlib.sha256(data).hexdigest()})
-    return path
-
-
 def run_training(config: TrainConfig, out: Path, export_to: Path, *, evaluate_heldout: bool = True, argv: Sequence[str] | None = None) -> Path:
     """Every step of the module docstring; returns the exported weights' path."""
     run = Run(config, out)
     started = datetime.datetime.now(datetime.timezone.utc)
-    command = "python -m ssga_synthesizer_midas_warp.train " + shlex.join(sys.argv[1:] if argv is None else list(argv))
+    command = command_line(MODULE, argv)
     data = run.views(config.train_seeds, config.views_per_home, "render")
     log(f"{len(data)} training views of {len(config.train_seeds)} homes")
     init = run.initial()
     net = MidasNet(LIGHT)
     net.load_state_dict(init.state_dict())
-    net, history = run.train(net, data)
-    training_s = sum(run.times.values())
-    figures: dict[str, Any] = {"training_seconds": round(training_s, 1), "seconds": {k: round(v, 1) for k, v in run.times.items()}}
-    figures["loss"] = _loss_summary(history, config)
-    provenance = {
-        "what": "light MiDaS-small (MidasNet_small layout: EfficientNet-Lite stem 16, stage widths 8/16/24/48/64/96/128, "
+    net, history = run.train(net, torch.optim.Adam(net.parameters(), lr=config.lr[0]), data)
+    figures = run.figures(history)
+    provenance = training_provenance(
+        "light MiDaS-small (MidasNet_small layout: EfficientNet-Lite stem 16, stage widths 8/16/24/48/64/96/128, "
         "features 16) trained from scratch on procedural homes with MiDaS's scale-and-shift-invariant loss",
-        "command": command,
-        "date": started.isoformat(timespec="seconds"),
-        "train_seeds": list(config.train_seeds),
-        "calibration_seeds": list(config.calibration_seeds),
-        "heldout_seeds": list(config.heldout_seeds),
-        "homes": {"even seeds": home_settings(0), "odd seeds": home_settings(1)},
-        "config": config.to_json(),
-        "figures": figures,
-        "torch": str(torch.__version__),
-        "python": platform.python_version(),
-        "threads": torch.get_num_threads(),
-    }
+        MODULE, argv, started, config, figures,
+        train_seeds=list(config.train_seeds),
+        calibration_seeds=list(config.calibration_seeds),
+        heldout_seeds=list(config.heldout_seeds),
+        homes={"even seeds": home_settings(0), "odd seeds": home_settings(1)},
+    )
     # Calibration on homes of their own, then held-out figures (of the seeded initialisation too).
     t = time.perf_counter()
     cal_views = cached_views(out / "views", config.calibration_seeds, config.calibration_views, progress=log)
@@ -291,36 +236,14 @@ def run_training(config: TrainConfig, out: Path, export_to: Path, *, evaluate_he
         }
         figures["heldout_seconds"] = round(time.perf_counter() - t, 1)
         log(f"held-out figures: {json.dumps(figures['heldout']['trained'])}")
-    path = export(net, provenance, export_to)
+    path = export_checkpoint(export_to, EXPORT_NAME, {"network": "light", "state_dict": net.state_dict()}, provenance)
     dataclasses.replace(calibration, weights_sha256=sha256_file(path)).write(calibration_path(path))
-    log(f"exported {path} ({path.stat().st_size / 1e6:.1f} MB); training took {training_s / 60:.1f} min")
+    log(f"exported {path} ({path.stat().st_size / 1e6:.1f} MB); training took {figures['training_seconds'] / 60:.1f} min")
     return path
 
 
-def _loss_summary(history: list[list[float]], config: TrainConfig) -> list[dict[str, Any]]:
-    out = []
-    for stage, (size, steps, batch) in enumerate(config.stages):
-        rows = np.array([h for h in history if int(h[0]) == stage]).reshape(-1, 3)
-        if len(rows):
-            w = max(1, min(50, len(rows) // 4))
-            out.append({"size": size, "steps": steps, "batch": batch, "loss_first": round(float(rows[:w, 2].mean()), 5), "loss_last": round(float(rows[-w:, 2].mean()), 5), "window": w})
-    return out
-
-
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m ssga_synthesizer_midas_warp.train", description=__doc__.split("\n\n")[0])
-    parser.add_argument("--out", type=Path, required=True, help="run folder: view caches, checkpoints (resumable), results")
-    parser.add_argument("--export", type=Path, default=None, help="folder for midas-light.pt, .json and .calibration.json (default: --out)")
-    parser.add_argument("--threads", type=int, default=1, help="torch threads (default 1)")
-    parser.add_argument("--no-eval", action="store_true", help="skip the held-out figures")
-    args = parser.parse_args(argv)
-    torch.set_num_threads(args.threads)
-    try:
-        run_training(TrainConfig(), args.out, args.export or args.out, evaluate_heldout=not args.no_eval, argv=argv)
-    except InputError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 1
-    return 0
+    return training_main(MODULE, __doc__, run_training, TrainConfig(), argv, exports=f"{EXPORT_NAME}.pt, .json and .calibration.json")
 
 
 if __name__ == "__main__":

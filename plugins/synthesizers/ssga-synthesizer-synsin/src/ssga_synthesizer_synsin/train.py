@@ -25,13 +25,9 @@ from the last checkpoint in ``--out``):
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import datetime
-import hashlib
 import json
-import platform
-import shlex
 import sys
 import time
 from collections.abc import Sequence
@@ -43,13 +39,13 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from ssga_bench import TrainingRun, atomic_write_bytes, checkpoint_bytes, load_checkpoint, write_json
+from ssga_bench import TrainingRun, atomic_write_bytes, checkpoint_bytes, export_checkpoint, training_main, training_provenance
 from ssga_bench import training_log as log
-from ssga_core import InputError
 from ssga_synthesizer_synsin.evaluate import HeldOut, evaluate, render_heldout
 from ssga_synthesizer_synsin.model import LightOptions, SynSinLight, parameters, render
 from ssga_synthesizer_synsin.pairs import TRAIN_SEEDS, Pairs, render_pairs
 
+MODULE = "ssga_synthesizer_synsin.train"
 EXPORT_NAME = "synsin-light"
 
 
@@ -97,56 +93,16 @@ class Run(TrainingRun):
             parts.append(part)
         return Pairs.concat(parts)
 
-    def train(self, net: SynSinLight, data: Pairs) -> tuple[SynSinLight, list[list[float]]]:
-        c = self.config
-        state_path = self.out / "state.pt"
-        optimizer = torch.optim.Adam(net.parameters(), lr=c.lr[0])
-        stage, step, history = 0, 0, []
-        if state_path.is_file():
-            state = load_checkpoint(state_path, "training state")
-            net.load_state_dict(state["state_dict"])
-            optimizer.load_state_dict(state["optimizer"])
-            stage, step, history = int(state["stage"]), int(state["step"]), [list(h) for h in state["history"]]
-            log(f"resuming at stage {stage + 1}, step {step}")
-        moves = _moves(data)
-        while stage < len(c.stages):
-            size, steps, batch = c.stages[stage]
-            for g in optimizer.param_groups:
-                g["lr"] = c.lr[stage]
-            t0, window = time.perf_counter(), []
-            net.train()
-            while step < steps:
-                rng = np.random.default_rng([c.seed, 2, stage, step])
-                losses = _step(net, optimizer, data, moves, size, batch, c, rng)
-                step += 1
-                window.append(losses)
-                history.append([stage, step, *losses])
-                if step % c.checkpoint_every == 0 or step == steps:
-                    elapsed = time.perf_counter() - t0
-                    self.timed(f"stage{stage + 1}", elapsed)
-                    t0 = time.perf_counter()
-                    self._save_state(net, optimizer, stage, step, history)
-                    total, l1, ssim, depth = np.mean(window, axis=0)
-                    rate = len(window) * batch / elapsed
-                    eta = (steps - step) * batch / rate
-                    log(
-                        f"stage {stage + 1}/{len(c.stages)} ({size} px) step {step}/{steps}: loss {total:.4f} (L1 {l1:.4f}, "
-                        f"SSIM {ssim:.3f}, log-depth L1 {depth:.3f}), {rate:.1f} pairs/s, stage ends in {eta / 60:.1f} min"
-                    )
-                    window = []
-            stage, step = stage + 1, 0
-            self._save_state(net, optimizer, stage, step, history)
-        return net, history
+    metrics = ("loss", "l1", "ssim", "log_depth_l1")
+    unit = "pairs"
 
-    def _save_state(self, net, optimizer, stage, step, history) -> None:
-        state = {
-            "state_dict": net.state_dict(),
-            "optimizer": optimizer.state_dict(),
-            "stage": stage,
-            "step": step,
-            "history": history,
-        }
-        atomic_write_bytes(self.out / "state.pt", checkpoint_bytes(state))
+    def begin_stage(self, stage: int, data: Pairs) -> tuple[Pairs, np.ndarray]:
+        return data, _moves(data)
+
+    def train_step(self, net, optimizer, stage, data, rng) -> list[float]:
+        pairs, moves = data
+        size, _, batch = self.config.stages[stage]
+        return _step(net, optimizer, pairs, moves, size, batch, self.config, rng)
 
 
 def _moves(data: Pairs) -> np.ndarray:
@@ -242,18 +198,6 @@ def _step(net: SynSinLight, optimizer, data: Pairs, moves: np.ndarray, size: int
     return [loss.item(), l1.item(), s.item(), depth_loss.item()]
 
 
-def export(net: SynSinLight, provenance: dict[str, Any], folder: Path) -> Path:
-    folder.mkdir(parents=True, exist_ok=True)
-    path = folder / f"{EXPORT_NAME}.pt"
-    data = checkpoint_bytes({"state_dict": net.state_dict(), "opts": net.light.to_json(), "provenance": provenance})
-    atomic_write_bytes(path, data)
-    write_json(
-        folder / f"{EXPORT_NAME}.json",
-        {**provenance, "file": path.name, "bytes": len(data), "sha256": hashlib.sha256(data).hexdigest()},
-    )
-    return path
-
-
 def _heldout(config: TrainConfig, init: SynSinLight, net: SynSinLight, out: Path) -> dict[str, Any]:
     from ssga_synthesizer_synsin.plugin import SynSinConfig, SynSinSynthesizer
 
@@ -268,21 +212,7 @@ def _heldout(config: TrainConfig, init: SynSinLight, net: SynSinLight, out: Path
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m ssga_synthesizer_synsin.train", description=__doc__.split("\n\n")[0])
-    parser.add_argument("--out", type=Path, required=True, help="run folder: pair caches, checkpoints (resumable), results")
-    parser.add_argument(
-        "--export", type=Path, default=None, help="folder for synsin-light.pt and synsin-light.json (default: --out)"
-    )
-    parser.add_argument("--threads", type=int, default=1, help="torch threads (default 1)")
-    parser.add_argument("--no-eval", action="store_true", help="skip the held-out figures")
-    args = parser.parse_args(argv)
-    torch.set_num_threads(args.threads)
-    try:
-        run_training(TrainConfig(), args.out, args.export or args.out, evaluate_heldout=not args.no_eval, argv=argv)
-    except InputError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 1
-    return 0
+    return training_main(MODULE, __doc__, run_training, TrainConfig(), argv, exports=f"{EXPORT_NAME}.pt and {EXPORT_NAME}.json")
 
 
 def run_training(
@@ -297,66 +227,23 @@ def run_training(
     init = SynSinLight(LightOptions())
     net = SynSinLight(LightOptions())
     net.load_state_dict(init.state_dict())
-    net, history = run.train(net, data)
-    net.eval()
-    training_s = sum(run.times.values())
-    figures: dict[str, Any] = {
-        "training_seconds": round(training_s, 1),
-        "seconds": {k: round(v, 1) for k, v in run.times.items()},
-    }
-    figures["loss"] = _loss_summary(history, config)
+    net, history = run.train(net, torch.optim.Adam(net.parameters(), lr=config.lr[0]), data)
+    figures = run.figures(history)
     if evaluate_heldout:
         t = time.perf_counter()
         figures["heldout"] = _heldout(config, init, net, out)
         figures["heldout_seconds"] = round(time.perf_counter() - t, 1)
         log(f"held-out: {json.dumps(figures['heldout'])}")
-    command = "python -m ssga_synthesizer_synsin.train " + shlex.join(sys.argv[1:] if argv is None else list(argv))
-    provenance = {
-        "what": f"light SynSin ({parameters(net) / 1e6:.2f} M parameters: half-resolution depth U-Net, feature encoder, refinement U-Net) trained on procedural homes",
-        "command": command,
-        "date": started.isoformat(timespec="seconds"),
-        "train_seeds": list(config.train_seeds),
-        "heldout_seeds": list(config.heldout.seeds),
-        "config": config.to_json(),
-        "opts": net.light.to_json(),
-        "figures": figures,
-        "torch": str(torch.__version__),
-        "python": platform.python_version(),
-        "threads": torch.get_num_threads(),
-    }
-    path = export(net, provenance, export_to)
-    log(f"exported {path} ({path.stat().st_size / 1e6:.1f} MB); training took {training_s / 60:.1f} min")
+    provenance = training_provenance(
+        f"light SynSin ({parameters(net) / 1e6:.2f} M parameters: half-resolution depth U-Net, feature encoder, refinement U-Net) trained on procedural homes",
+        MODULE, argv, started, config, figures,
+        train_seeds=list(config.train_seeds),
+        heldout_seeds=list(config.heldout.seeds),
+        opts=net.light.to_json(),
+    )
+    path = export_checkpoint(export_to, EXPORT_NAME, {"state_dict": net.state_dict(), "opts": net.light.to_json()}, provenance)
+    log(f"exported {path} ({path.stat().st_size / 1e6:.1f} MB); training took {figures['training_seconds'] / 60:.1f} min")
     return path
-
-
-def _loss_summary(history: list[list[float]], config: TrainConfig) -> list[dict[str, Any]]:
-    out = []
-    for stage, (size, steps, batch) in enumerate(config.stages):
-        rows = np.array([h for h in history if int(h[0]) == stage]).reshape(-1, 6)
-        if len(rows):
-            w = max(1, min(25, len(rows) // 4))
-            first, last = rows[:w, 2:].mean(0), rows[-w:, 2:].mean(0)
-            out.append(
-                {
-                    "size": size,
-                    "steps": steps,
-                    "batch": batch,
-                    "window": w,
-                    "first": {
-                        "loss": round(float(first[0]), 4),
-                        "l1": round(float(first[1]), 4),
-                        "ssim": round(float(first[2]), 4),
-                        "log_depth_l1": round(float(first[3]), 4),
-                    },
-                    "last": {
-                        "loss": round(float(last[0]), 4),
-                        "l1": round(float(last[1]), 4),
-                        "ssim": round(float(last[2]), 4),
-                        "log_depth_l1": round(float(last[3]), 4),
-                    },
-                }
-            )
-    return out
 
 
 if __name__ == "__main__":

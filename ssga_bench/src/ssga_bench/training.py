@@ -1,0 +1,255 @@
+"""What every learned plugin's training command shares, so each ``train.py`` holds only its own data, loss and figures.
+
+A training command (``python -m ssga_<plugin>.train --out RUN [--export DIR]``) trains
+in *stages* of growing image size, each a fixed number of optimiser steps, and must
+survive interruption: run it again and it goes on from its last checkpoint, drawing
+the batches an uninterrupted run would have drawn. :class:`TrainingRun` is that
+loop; a plugin subclasses it with four hooks::
+
+    class Run(TrainingRun):
+        metrics = ("loss", "accuracy")             # what train_step returns, in order
+
+        def begin_stage(self, stage, data):        # optional: e.g. resize the views once per stage
+            return resized(data, self.config.stages[stage][0])
+
+        def learning_rate(self, stage, step, steps):   # optional: the default is lr[stage]
+            return poly_lr(self.config.lr[stage], step, steps)
+
+        def train_step(self, net, optimizer, stage, data, rng):
+            ...one optimiser step on a batch drawn with rng...
+            return loss, accuracy
+
+    net, history = Run(config, out).train(net, optimizer, data)
+
+The config is a frozen dataclass with ``stages`` (``(size, steps, batch, ...)``
+tuples), ``lr`` (one per stage), ``checkpoint_every``, ``seed`` and ``to_json()``.
+:func:`training_provenance`, :func:`export_checkpoint` and :func:`training_main` give every
+plugin the same provenance record, exported files and command line.
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import hashlib
+import math
+import platform
+import shlex
+import sys
+import time
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, ClassVar
+
+import numpy as np
+
+from ssga_core.errors import InputError, SsgaError
+
+if TYPE_CHECKING:
+    import torch
+
+
+def training_log(message: str) -> None:
+    """One timestamped progress line of a training command."""
+    print(f"[{datetime.datetime.now().strftime('%H:%M:%S')}] {message}", flush=True)
+
+
+def cosine_lr(peak: float, step: int, steps: int, floor: float = 0.1) -> float:
+    """Cosine decay from ``peak`` at step 0 to ``floor * peak`` at the last step."""
+    return peak * (floor + (1 - floor) * 0.5 * (1 + math.cos(math.pi * step / steps)))
+
+
+def poly_lr(peak: float, step: int, steps: int, power: float = 0.9) -> float:
+    """The "poly" decay ``peak * (1 - step / steps) ** power`` (CSAIL's and DeepLab's)."""
+    return peak * (1 - step / steps) ** power
+
+
+class TrainingRun:
+    """A training command's folder ``out``: its config (a rerun with another one is refused,
+    so a resumed run never mixes two), the seconds spent per phase (kept across resumes),
+    and the staged, resumable optimisation loop :meth:`train`.
+    """
+
+    metrics: ClassVar[tuple[str, ...]] = ("loss",)
+    """Names of the figures :meth:`train_step` returns, in order (the first is the loss)."""
+    rng_stream: ClassVar[int] = 2
+    """Step ``s`` of stage ``k`` draws its batch from ``default_rng([seed, rng_stream, k, s])``: the
+    same batches however often the run is interrupted (each plugin keeps the stream its packaged
+    weights were trained with)."""
+    unit: ClassVar[str] = "images"
+    """What a batch counts, for the progress line's rate."""
+
+    def __init__(self, config: Any, out: Path) -> None:
+        from ssga_bench.io import read_json, write_json
+
+        self.config, self.out = config, out
+        out.mkdir(parents=True, exist_ok=True)
+        stored = out / "config.json"
+        if stored.is_file():
+            if read_json(stored) != config.to_json():
+                raise InputError(f"{out}: holds a run of another config ({stored}); use a new --out or delete it")
+        else:
+            write_json(stored, config.to_json())
+        times = out / "times.json"
+        self.times: dict[str, float] = read_json(times) if times.is_file() else {}
+
+    def timed(self, phase: str, seconds: float) -> None:
+        from ssga_bench.io import write_json
+
+        self.times[phase] = self.times.get(phase, 0.0) + seconds
+        write_json(self.out / "times.json", self.times)
+
+    # ------------------------------------------------------------------ hooks
+
+    def begin_stage(self, stage: int, data: Any) -> Any:
+        """What :meth:`train_step` gets as ``data`` in ``stage`` (called once per stage that has steps left)."""
+        return data
+
+    def learning_rate(self, stage: int, step: int, steps: int) -> float:
+        return self.config.lr[stage]
+
+    def batch_size(self, stage: int) -> int:
+        """Samples per step (the progress line's rate); ``stages[stage][2]`` unless overridden."""
+        return int(self.config.stages[stage][2])
+
+    def train_step(self, net: torch.nn.Module, optimizer: torch.optim.Optimizer, stage: int, data: Any, rng: np.random.Generator) -> Sequence[float]:
+        """One optimiser step on a batch drawn with ``rng``; returns the :attr:`metrics`."""
+        raise NotImplementedError
+
+    # ------------------------------------------------------------------ the loop
+
+    def train(self, net: torch.nn.Module, optimizer: torch.optim.Optimizer, data: Any) -> tuple[torch.nn.Module, list[list[float]]]:
+        """Every stage's steps from the last checkpoint in ``out`` on; returns the network (in eval
+        mode) and the history: one ``[stage, step, *metrics]`` row per step of the whole run."""
+        from ssga_bench.learned import load_checkpoint
+
+        c = self.config
+        stage, step, history = 0, 0, []
+        state_path = self.out / "state.pt"
+        if state_path.is_file():
+            state = load_checkpoint(state_path, "training state")
+            net.load_state_dict(state["state_dict"])
+            optimizer.load_state_dict(state["optimizer"])
+            stage, step, history = int(state["stage"]), int(state["step"]), [list(h) for h in state["history"]]
+            training_log(f"resuming at stage {stage + 1}, step {step}")
+        while stage < len(c.stages):
+            size, steps = c.stages[stage][:2]
+            stage_data = self.begin_stage(stage, data) if step < steps else None
+            t0, window = time.perf_counter(), []
+            net.train()
+            while step < steps:
+                lr = self.learning_rate(stage, step, steps)
+                for group in optimizer.param_groups:
+                    group["lr"] = lr
+                figures = [float(f) for f in self.train_step(net, optimizer, stage, stage_data, np.random.default_rng([c.seed, self.rng_stream, stage, step]))]
+                step += 1
+                window.append(figures)
+                history.append([stage, step, *figures])
+                if step % c.checkpoint_every == 0 or step == steps:
+                    elapsed = time.perf_counter() - t0
+                    self.timed(f"stage{stage + 1}", elapsed)
+                    t0 = time.perf_counter()
+                    self._save_state(net, optimizer, stage, step, history)
+                    rate = len(window) * self.batch_size(stage) / elapsed
+                    eta = (steps - step) * self.batch_size(stage) / rate
+                    means = ", ".join(f"{name} {value:.4g}" for name, value in zip(self.metrics, np.mean(window, axis=0), strict=True))
+                    training_log(
+                        f"stage {stage + 1}/{len(c.stages)} ({size} px) step {step}/{steps}: {means}, lr {lr:.2g}, "
+                        f"{rate:.1f} {self.unit}/s, stage ends in {eta / 60:.1f} min"
+                    )
+                    window = []
+            stage, step = stage + 1, 0
+            self._save_state(net, optimizer, stage, step, history)
+        net.eval()
+        return net, history
+
+    def _save_state(self, net: torch.nn.Module, optimizer: torch.optim.Optimizer, stage: int, step: int, history: list[list[float]]) -> None:
+        from ssga_bench.io import atomic_write_bytes
+        from ssga_bench.learned import checkpoint_bytes
+
+        state = {"state_dict": net.state_dict(), "optimizer": optimizer.state_dict(), "stage": stage, "step": step, "history": history}
+        atomic_write_bytes(self.out / "state.pt", checkpoint_bytes(state))
+
+    # ------------------------------------------------------------------ figures
+
+    def figures(self, history: list[list[float]]) -> dict[str, Any]:
+        """Time spent (per phase) and, per stage, the mean of each metric over its first and last steps."""
+        loss = []
+        for stage, (size, steps, *rest) in enumerate(self.config.stages):
+            rows = np.array([h[2:] for h in history if int(h[0]) == stage], dtype=np.float64).reshape(-1, len(self.metrics))
+            if len(rows):
+                w = max(1, min(50, len(rows) // 4))
+                first, last = rows[:w].mean(axis=0), rows[-w:].mean(axis=0)
+                loss.append({
+                    "size": size, "steps": steps, **({"batch": rest[0]} if rest else {}), "window": w,
+                    "first": {name: round(float(v), 5) for name, v in zip(self.metrics, first, strict=True)},
+                    "last": {name: round(float(v), 5) for name, v in zip(self.metrics, last, strict=True)},
+                })
+        return {"training_seconds": round(sum(self.times.values()), 1), "seconds": {k: round(v, 1) for k, v in self.times.items()}, "loss": loss}
+
+
+def training_provenance(what: str, module: str, argv: Sequence[str] | None, started: datetime.datetime, config: Any, figures: dict[str, Any], **extra: Any) -> dict[str, Any]:
+    """The record exported weights carry: what they are, the command that made them, when, from
+    which config, with which figures, on which torch and Python (``extra``: the plugin's own)."""
+    import torch
+
+    return {
+        "what": what,
+        "command": command_line(module, argv),
+        "date": started.isoformat(timespec="seconds"),
+        **extra,
+        "config": config.to_json(),
+        "figures": figures,
+        "torch": str(torch.__version__),
+        "python": platform.python_version(),
+        "threads": torch.get_num_threads(),
+    }
+
+
+def command_line(module: str, argv: Sequence[str] | None) -> str:
+    """``python -m MODULE ARGS`` as the user typed it (``argv`` None: this process's own arguments)."""
+    return f"python -m {module} " + shlex.join(sys.argv[1:] if argv is None else list(argv))
+
+
+def export_checkpoint(folder: Path, name: str, payload: dict[str, Any], provenance: dict[str, Any]) -> Path:
+    """``folder/NAME.pt`` (``payload`` plus the provenance) and ``folder/NAME.json`` (the provenance, the file's size and SHA-256)."""
+    from ssga_bench.io import atomic_write_bytes, write_json
+    from ssga_bench.learned import checkpoint_bytes
+
+    path = folder / f"{name}.pt"
+    data = checkpoint_bytes({**payload, "provenance": provenance})
+    atomic_write_bytes(path, data)
+    write_json(folder / f"{name}.json", {**provenance, "file": path.name, "bytes": len(data), "sha256": hashlib.sha256(data).hexdigest()})
+    return path
+
+
+def training_main(
+    module: str,
+    doc: str,
+    run_training: Callable[..., Path],
+    config: Any,
+    argv: Sequence[str] | None,
+    *,
+    exports: str,
+    default_export: Callable[[Path], Path] = lambda out: out,
+) -> int:
+    """The command line every training module has: ``--out``, ``--export``, ``--threads``, ``--no-eval``.
+
+    Calls ``run_training(config, out, export, evaluate_heldout=..., argv=argv)``; an
+    ssga error is one ``error:`` line and exit status 1.
+    """
+    import torch
+
+    parser = argparse.ArgumentParser(prog=f"python -m {module}", description=doc.split("\n\n")[0])
+    parser.add_argument("--out", type=Path, required=True, help="run folder: caches, checkpoints (resumable), results")
+    parser.add_argument("--export", type=Path, default=None, help=f"folder for {exports} (default: {default_export(Path('--out')).as_posix()})")
+    parser.add_argument("--threads", type=int, default=1, help="torch threads (default 1)")
+    parser.add_argument("--no-eval", action="store_true", help="skip the held-out figures")
+    args = parser.parse_args(argv)
+    torch.set_num_threads(args.threads)
+    try:
+        run_training(config, args.out, args.export or default_export(args.out), evaluate_heldout=not args.no_eval, argv=argv)
+    except SsgaError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 1
+    return 0
