@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import textwrap
 
 import pytest
@@ -251,3 +252,24 @@ def test_the_configs_in_docs_config_md_validate(tmp_path, ssga_installed_registr
     assert labels["swap-all"][0] == "P-SL (PDS)" and all(label.startswith("P") for label in labels["swap-all"])
     assert labels["swap-one"] == ["SIFT-SL (PDS)", "SIFT (DS)", "CNN"]
     assert labels["paper-on-my-scan"][0] == "CNN"
+
+
+def test_ssga_variants_reads_configs_as_every_command_does(tmp_path, monkeypatch):
+    """A packaged experiment by name, and a file of one's own on a preset with one stage swapped."""
+    from typer.testing import CliRunner
+
+    from ssga_core.cli import app_with_plugin_commands
+
+    monkeypatch.chdir(tmp_path)
+    app, runner = app_with_plugin_commands(), CliRunner()
+    result = runner.invoke(app, ["variants", "--config", "parsers", "--json"])
+    assert result.exit_code == 0, result.output
+    rows = json.loads(result.output)
+    assert [(r["label"], r["parser"]) for r in rows[:3]] == [("SIFT-SL (PDS)", "slico"), ("SIFT-SL (PSD)", "slico"), ("SIFT-SE (PDS)", "cascade-seg")]
+    (tmp_path / "mine.toml").write_text('preset = "bench"\n[stages]\nparser = { name = "semantic" }\n')
+    result = runner.invoke(app, ["variants", "--config", "mine.toml", "--json"])
+    assert result.exit_code == 0, result.output
+    rows = json.loads(result.output)
+    assert len(rows) == 8 and rows[0] == {"label": "SIFT-GT (PDS)", "variant": "PDS", "parser": "semantic", "descriptor": "dense-sift", "synthesizer": "depth-warp"}
+    result = runner.invoke(app, ["variants", "--config", "nosuch"])
+    assert result.exit_code != 0 and "nosuch: no such config file" in result.output

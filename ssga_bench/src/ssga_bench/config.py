@@ -189,10 +189,16 @@ def with_preset(data: dict[str, Any], source: str) -> dict[str, Any]:
     return merged
 
 
+def read_experiment(path: str | Path) -> tuple[dict[str, Any], Path]:
+    """An experiment config file (or a packaged one by name) with its ``preset`` applied, and the file it is."""
+    path = config_path(path)
+    return with_preset(read_toml(path), str(path)), path
+
+
 def load_experiment(path: str | Path, registry: Registry) -> Experiment:
     """Read and validate an experiment config file (or a packaged one by name); raise :class:`ConfigError` with every problem."""
-    path = config_path(path)
-    return validate_experiment(with_preset(read_toml(path), str(path)), registry, source=str(path), base_dir=path.parent)
+    data, path = read_experiment(path)
+    return validate_experiment(data, registry, source=str(path), base_dir=path.parent)
 
 
 def _defaults() -> dict[str, Any]:

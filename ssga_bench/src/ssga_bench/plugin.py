@@ -6,6 +6,9 @@ commands, so ``ssga --help`` and ``ssga variants --list`` stay fast.
 
 from __future__ import annotations
 
+from pathlib import Path
+from typing import Any
+
 import typer
 
 from ssga_core import hookimpl
@@ -17,3 +20,12 @@ def ssga_register_commands(app: typer.Typer) -> None:
 
     for module in (config, run, workspace, extract, synthesize, parse):
         module.register(app)
+
+
+@hookimpl
+def ssga_read_config(path: Path) -> tuple[dict[str, Any], Path]:
+    """Experiment configs as every ssga command reads them: a packaged one by name, ``preset`` applied."""
+    from ssga_bench.config import read_experiment
+
+    return read_experiment(path)
+

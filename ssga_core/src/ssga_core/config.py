@@ -292,10 +292,15 @@ def resolve_stage(
     return stage
 
 
-def resolve_variants(path: str | Path, registry: Registry) -> list[ResolvedVariant]:
-    """The variants a config file binds, with their stages (its other sections are not read)."""
+def resolve_variants(path: str | Path, registry: Registry, data: dict[str, Any] | None = None) -> list[ResolvedVariant]:
+    """The variants a config file binds, with their stages (its other sections are not read).
+
+    ``data``: the file's contents when the caller has read them already (with a plugin's
+    layers applied: :func:`ssga_core.hookspecs.ssga_read_config`); else the file is read.
+    """
     path = Path(path)
-    data = read_toml(path)
+    if data is None:
+        data = read_toml(path)
     try:
         config = VariantsConfig.model_validate({k: data[k] for k in ("stages", "variants") if k in data})
     except ValidationError as exc:

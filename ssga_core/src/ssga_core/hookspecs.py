@@ -15,7 +15,8 @@ plugins registering the same name is an error naming both.
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import pluggy
 
@@ -82,3 +83,19 @@ def ssga_register_commands(app: typer.Typer) -> None:
 
     :param app: the ``ssga`` typer app.
     """
+
+
+@hookspec(firstresult=True)
+def ssga_read_config(path: Path) -> tuple[dict[str, Any], Path] | None:
+    """An experiment config as the core's commands (``ssga variants --config``) should see it.
+
+    For a plugin that layers configs, as ssga-bench does (a packaged experiment named
+    instead of a path, ``preset = "NAME"`` under a file's own keys). The first plugin
+    to answer wins; with none, the core reads the file as plain TOML.
+
+    :param path: what the user gave: a file, or a name the plugin may know.
+    :return: the config's contents with its layers applied, and the file they came
+        from (relative paths in it are taken from that file's folder); or None when
+        the plugin has nothing to say about ``path``.
+    """
+

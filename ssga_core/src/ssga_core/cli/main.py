@@ -12,6 +12,7 @@ from __future__ import annotations
 import functools
 import sys
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any, TypeVar
 
 import typer
@@ -67,6 +68,14 @@ def command(parent: typer.Typer = app, **kwargs: Any) -> Callable[[F], F]:
 def current_registry() -> plugins.Registry:
     """The registry of installed plugins, for commands (tests replace ``plugins.default_registry``)."""
     return plugins.default_registry()
+
+
+def read_config(path: Path) -> tuple[dict[str, Any], Path]:
+    """An experiment config as the installed plugins layer it (``ssga_read_config``), else the file as plain TOML."""
+    from ssga_core.config import read_toml
+
+    layered = plugins.default_plugins().pm.hook.ssga_read_config(path=path)
+    return layered if layered is not None else (read_toml(path), path)
 
 
 _plugin_commands_added = False

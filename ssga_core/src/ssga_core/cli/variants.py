@@ -10,7 +10,7 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
-from ssga_core.cli.main import command, current_registry
+from ssga_core.cli.main import command, current_registry, read_config
 from ssga_core.config import resolve_variants
 from ssga_core.kinds import PIPELINE_KIND_NAMES
 from ssga_core.variants import order_rows
@@ -18,9 +18,10 @@ from ssga_core.variants import order_rows
 
 def config_rows(path: Path) -> list[dict[str, Any]]:
     """One row per variant a config binds: label, order and the plugin of each stage."""
+    data, source = read_config(path)
     return [
         {"label": rv.label, "variant": str(rv.variant), **{kind: rv.stages[kind].name if kind in rv.stages else None for kind in PIPELINE_KIND_NAMES}}
-        for rv in resolve_variants(path, current_registry())
+        for rv in resolve_variants(source, current_registry(), data)
     ]
 
 
@@ -44,7 +45,7 @@ def _print_config(console: Console, path: Path, rows: list[dict[str, Any]]) -> N
 @command(name="variants")
 def variants_cli(
     list_orders: Annotated[bool, typer.Option("--list", "-l", help="List every valid order (what the command shows without --config).")] = False,
-    config: Annotated[Path | None, typer.Option("--config", "-c", metavar="FILE", help="List the variants this experiment config binds, with their plugins.")] = None,
+    config: Annotated[Path | None, typer.Option("--config", "-c", metavar="FILE", help="List the variants this experiment config (or a packaged one by name) binds, with their plugins.")] = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print JSON instead of tables.")] = False,
 ) -> None:
     """List the valid variant orders (and which the paper uses), or the variants a config binds, or both."""
