@@ -5,10 +5,8 @@ heading, and ``views_per_place - 1`` more poses jittered around it (within
 ``jitter_m`` and ``jitter_deg``). As NetVLAD derives its training pairs from GPS, two
 views are *positives* when they stand close in position and heading, and *negatives*
 when they are far apart in either, or in different homes; pairs in between are
-neither. Homes come from the ``procedural`` workspace source through the installed
-registry, with the benchmark's home settings (8 rooms, 18 x 14 m); the benchmark
-evaluates seeds 0, 1, 2 (the demo seed 0), so training and held-out homes use seeds
-of 1000 and above.
+neither. Homes are procedural ones with the benchmark's settings (8 rooms, 18 x 14 m),
+on seeds no other plugin uses (:mod:`ssga_workspace_procedural.training_homes`).
 """
 
 from __future__ import annotations
@@ -18,10 +16,6 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
-
-HOME = {"rooms": 8, "home_width": 18.0, "home_depth": 14.0}
-"""The benchmark's home settings (``ssga_bench/configs/bench.toml``)."""
-
 
 @dataclass
 class Places:
@@ -44,14 +38,6 @@ class Places:
         return {"rgb": self.rgb, "poses": self.poses, "home": self.home, "place": self.place}
 
 
-def open_home(seed: int):  # -> ssga_bench.Workspace
-    """The procedural home ``seed`` with the benchmark's settings (through the installed registry)."""
-    from ssga_core import resolve_stage
-    from ssga_core.cli import current_registry
-
-    return resolve_stage("workspace", {"name": "procedural", "seed": seed, **HOME}, current_registry()).create().open()
-
-
 def render_places(
     seed: int,
     places: int,
@@ -63,6 +49,8 @@ def render_places(
     progress: Callable[[str], None] | None = None,
 ) -> Places:
     """``places`` places of home ``seed`` (poses drawn with the home's seed: the same every time)."""
+    from ssga_workspace_procedural.training_homes import open_home
+
     from ssga_core import Pose
 
     workspace = open_home(seed)

@@ -47,7 +47,8 @@ from ssga_core import InputError
 from ssga_bench import TrainingRun, atomic_write_bytes, checkpoint_bytes, export_checkpoint, load_checkpoint, training_main, training_provenance
 from ssga_bench import training_log as log
 from ssga_descriptor_pnv.evaluate import HeldOut, evaluate, render_heldout
-from ssga_descriptor_pnv.homes import HOME, Places, relations, render_places
+from ssga_descriptor_pnv.homes import Places, relations, render_places
+from ssga_workspace_procedural.training_homes import BENCH_HOME
 from ssga_descriptor_pnv.layout import LIGHT_WIDTHS
 from ssga_descriptor_pnv.model import PatchNetVLAD, preprocess
 
@@ -291,7 +292,7 @@ def run_training(config: TrainConfig, out: Path, export_to: Path, *, evaluate_he
         MODULE, argv, started, config, figures,
         train_seeds=list(config.train_seeds),
         heldout_seeds=list(config.heldout.seeds),
-        home=HOME,
+        home=dict(BENCH_HOME),
     )
     path = export_checkpoint(export_to, EXPORT_NAME, {"num_pcs": net.num_pcs, "state_dict": net.state_dict()}, provenance)
     log(f"exported {path} ({path.stat().st_size / 1e6:.1f} MB); training took {figures['training_seconds'] / 60:.1f} min")

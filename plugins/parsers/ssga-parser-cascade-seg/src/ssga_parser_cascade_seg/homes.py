@@ -3,7 +3,8 @@
 The benchmark evaluates procedural seeds 0, 1 and 2; the other learned plugins' weights
 used 1000-1101 (pnv), 2000-2203 (midas-warp) and 3000-3005 (synsin). Here: training on
 :data:`TRAIN_SEEDS` (4000-4011), held-out figures on :data:`HELDOUT_SEEDS`
-(4100-4103). Views are rendered by midas-warp's :func:`standing_views` (uniform standing
+(4100-4103). Views are
+:func:`~ssga_workspace_procedural.training_homes.standing_views` (uniform standing
 poses and headings drawn from the seed; even seeds with the benchmark's home settings,
 odd ones with the demo's), and their semantic ids become class indices: procedural id
 ``k + 1`` is class ``k`` (:data:`~.classes.PROCEDURAL`), unknown pixels ``-1``.
@@ -55,10 +56,10 @@ def class_labels(semantic: np.ndarray) -> np.ndarray:
 
 def render_labelled(seed: int, count: int, *, progress: Callable[[str], None] | None = None) -> Labelled:
     """``count`` views of home ``seed`` with their class labels (the same views every time)."""
-    from ssga_synthesizer_midas_warp.homes import standing_views
+    from ssga_workspace_procedural.training_homes import bench_and_demo_sized, standing_views
 
     rgb, labels = [], []
-    for view in standing_views(seed, count, progress=progress):
+    for view in standing_views(seed, count, bench_and_demo_sized(seed), progress=progress):
         assert view.semantic is not None, "procedural views carry semantic ids"
         rgb.append(view.rgb)
         labels.append(class_labels(view.semantic))

@@ -25,7 +25,8 @@ from typing import Any
 import numpy as np
 
 from ssga_synthesizer_midas_warp.calibration import Calibration, calibration_path, fit_inverse_depth, sha256_file
-from ssga_synthesizer_midas_warp.homes import CALIBRATION_SEEDS, home_settings
+from ssga_synthesizer_midas_warp.homes import CALIBRATION_SEEDS
+from ssga_workspace_procedural.training_homes import bench_and_demo_sized
 
 PIXELS_PER_VIEW = 4096
 
@@ -67,7 +68,7 @@ def calibrate(
         "date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
         "weights": weights,
         "seeds": list(seeds),
-        "homes": {str(s): home_settings(s) for s in seeds},
+        "homes": {str(s): dict(bench_and_demo_sized(s)) for s in seeds},
         "views": len(rgb),
         "pixels_per_view": pixels,
         "fit": {"points": fit.points, "residual_sigma": fit.sigma, "inliers_3sigma": fit.inliers},

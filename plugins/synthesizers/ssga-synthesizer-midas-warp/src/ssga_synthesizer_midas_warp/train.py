@@ -51,7 +51,8 @@ from ssga_bench import training_log as log
 from ssga_synthesizer_midas_warp.calibrate import calibrate
 from ssga_synthesizer_midas_warp.calibration import calibration_path, sha256_file
 from ssga_synthesizer_midas_warp.evaluate import evaluate_network
-from ssga_synthesizer_midas_warp.homes import CALIBRATION_SEEDS, HELDOUT_SEEDS, TRAIN_SEEDS, Views, cached_views, home_settings
+from ssga_synthesizer_midas_warp.homes import CALIBRATION_SEEDS, HELDOUT_SEEDS, TRAIN_SEEDS, Views, cached_views
+from ssga_workspace_procedural.training_homes import bench_and_demo_sized
 from ssga_synthesizer_midas_warp.model import LIGHT, MEAN, STD, MidasNet, init_weights
 
 MODULE = "ssga_synthesizer_midas_warp.train"
@@ -218,7 +219,7 @@ def run_training(config: TrainConfig, out: Path, export_to: Path, *, evaluate_he
         train_seeds=list(config.train_seeds),
         calibration_seeds=list(config.calibration_seeds),
         heldout_seeds=list(config.heldout_seeds),
-        homes={"even seeds": home_settings(0), "odd seeds": home_settings(1)},
+        homes={"even seeds": dict(bench_and_demo_sized(0)), "odd seeds": dict(bench_and_demo_sized(1))},
     )
     # Calibration on homes of their own, then held-out figures (of the seeded initialisation too).
     t = time.perf_counter()

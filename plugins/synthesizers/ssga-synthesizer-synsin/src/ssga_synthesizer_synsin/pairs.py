@@ -8,10 +8,9 @@ looked-at point is drawn uniformly over a home's free floor, the source stands
 stands as far behind it along a heading turned by up to ``max_turn_deg`` (SynSin's MP3D
 data turns up to 45 degrees, ``--max_angle``); both must stand on free floor.
 
-Homes come from the installed ``procedural`` workspace source with the benchmark's
-settings (:func:`ssga_descriptor_pnv.homes.open_home`). Seeds: the benchmark evaluates
-0, 1, 2 (the demo 0), pnv trains on 1000-1007 and holds out 1100-1101, midas-warp uses
-2000 and above; this package trains on 3000-3005 and holds out 3100-3101.
+Homes are procedural ones with the benchmark's settings
+(:func:`ssga_workspace_procedural.training_homes.open_home`), on seeds no other plugin
+uses: this package trains on 3000-3005 and holds out 3100-3101.
 """
 
 from __future__ import annotations
@@ -106,7 +105,7 @@ def render_pairs(
     progress: Callable[[str], None] | None = None,
 ) -> Pairs:
     """``count`` orbit pairs of home ``seed`` (poses drawn from the seed: the same every time)."""
-    from ssga_descriptor_pnv.homes import open_home
+    from ssga_workspace_procedural.training_homes import open_home
 
     from ssga_core import Pose
 
