@@ -3,8 +3,8 @@
 Pairs: ``pairs_per_home`` orbit pairs (:mod:`.pairs`) in each held-out home (3100, 3101:
 no training run and no benchmark uses them). Each pair's source view is synthesized at
 the target pose and compared with the true render there, as the repository's
-``scripts/synthesis_quality.py`` measures (the same masks and scores, reimplemented
-here because plugins do not import scripts):
+``scripts/synthesis_quality.py`` measures (the same masks and scores,
+:mod:`ssga_bench.synthesis_quality`):
 
 * ``seen``: target pixels whose true surface the source saw (the pixel, moved into the
   source camera with the true target depth, lands on the source's true depth there
@@ -43,9 +43,8 @@ from typing import Any
 
 import numpy as np
 
+from ssga_bench.synthesis_quality import Tally, seen_mask
 from ssga_synthesizer_synsin.pairs import HELDOUT_SEEDS, Pairs, render_pairs
-
-TOLERANCE = 0.02
 
 
 @dataclass(frozen=True)
@@ -63,77 +62,6 @@ def render_heldout(spec: HeldOut = HeldOut(), progress: Callable[[str], None] | 
             for s in spec.seeds
         ]
     )
-
-
-def _move(depth: np.ndarray, view, to) -> tuple[np.ndarray, np.ndarray]:
-    T = to.relative_to(view.pose)
-    points = view.camera.unproject(depth) @ T[:3, :3].T.astype(np.float32) + T[:3, 3].astype(np.float32)
-    uv, z = view.camera.project(points)
-    known = depth > 0
-    return np.where(known[..., None], uv, np.nan), np.where(known, z, np.nan)
-
-
-def _on_surface(uv: np.ndarray, z: np.ndarray, depth: np.ndarray) -> np.ndarray:
-    import cv2
-
-    h, w = depth.shape
-    with np.errstate(invalid="ignore"):
-        inside = (uv[..., 0] > -0.5) & (uv[..., 0] < w - 0.5) & (uv[..., 1] > -0.5) & (uv[..., 1] < h - 0.5) & (z > 0)
-    u = np.where(inside, uv[..., 0], 0).astype(np.float32)
-    v = np.where(inside, uv[..., 1], 0).astype(np.float32)
-    nearest = depth[np.rint(v).astype(int), np.rint(u).astype(int)]
-    with np.errstate(divide="ignore"):
-        inverse = np.where(depth > 0, 1.0 / depth, 0.0).astype(np.float32)
-    bilinear = cv2.remap(inverse, u, v, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        return inside & ((np.abs(nearest - z) <= TOLERANCE * z) | (np.abs(1.0 / bilinear - z) <= TOLERANCE * z))
-
-
-def seen_mask(truth, source) -> np.ndarray:
-    """``(H, W)`` bool: target pixels of ``truth`` whose true surface ``source`` saw (both views carry true depth)."""
-    return _on_surface(*_move(truth.depth, truth, source.pose), source.depth)
-
-
-@dataclass
-class Tally:
-    """PSNR and SSIM of one mask, pooled over pairs."""
-
-    pixels: int = 0
-    squared_error: float = 0.0
-    ssim_sum: float = 0.0
-
-    def add(self, synthetic: np.ndarray, truth: np.ndarray, mask: np.ndarray) -> None:
-        from skimage.metrics import structural_similarity
-
-        if not mask.any():
-            return
-        diff = synthetic[mask].astype(np.float64) - truth[mask]
-        self.squared_error += float((diff**2).mean(axis=-1).sum())
-        pasted = np.where(mask[..., None], synthetic, truth)
-        _, smap = structural_similarity(
-            pasted,
-            truth,
-            channel_axis=-1,
-            data_range=255,
-            gaussian_weights=True,
-            sigma=1.5,
-            use_sample_covariance=False,
-            full=True,
-        )
-        self.ssim_sum += float(smap.mean(axis=-1)[mask].sum())
-        self.pixels += int(mask.sum())
-
-    @property
-    def psnr(self) -> float:
-        return (
-            float(10 * np.log10(255.0**2 * self.pixels / self.squared_error))
-            if self.pixels and self.squared_error
-            else float("nan")
-        )
-
-    @property
-    def ssim(self) -> float:
-        return self.ssim_sum / self.pixels if self.pixels else float("nan")
 
 
 @dataclass
@@ -166,7 +94,7 @@ def measure(renderers: dict[str, Callable[[Any, Any], np.ndarray]], pairs: Pairs
     scores = {name: Scores() for name in renderers}
     for i in range(len(pairs)):
         source, truth = views(pairs, i)
-        seen = seen_mask(truth, source)
+        seen = seen_mask(truth, [source])
         everything = np.ones_like(seen)
         for name, render in renderers.items():
             t = time.perf_counter()
