@@ -31,6 +31,8 @@ from ssga_parser_cascade_seg.plugin import LIGHT_SCALES, ORIGINAL_SCALES, Cascad
 
 from ssga_core.testing import make_view  # noqa: E402
 
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
+
 NETWORKS = {
     "light": {},
     "resnet18dilated": {"network": "resnet18dilated", "classes": "ade20k", "weights": "random"},
@@ -45,14 +47,6 @@ SCALES = {
 }
 ROUNDS = {"light": 20, "resnet18dilated": 5, "resnet50dilated": 3}
 """Rounds per case: the official networks take seconds per view on one thread."""
-
-
-@pytest.fixture(scope="module", autouse=True)
-def one_thread():
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(before)
 
 
 @pytest.mark.parametrize(("network", "scales"), sorted(SCALES))

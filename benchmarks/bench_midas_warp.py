@@ -18,29 +18,21 @@ weights). torch runs on one thread (the benchmark machine has two busy cores). R
 
 from __future__ import annotations
 
-import numpy as np
 import pytest
 
 pytest.importorskip("ssga_synthesizer_midas_warp")
 torch = pytest.importorskip("torch")
 
-from ssga_core import Pose, View  # noqa: E402
+from ssga_core import View  # noqa: E402
 from ssga_core.testing import make_view  # noqa: E402
 from ssga_synthesizer_midas_warp.plugin import MidasWarp, MidasWarpConfig  # noqa: E402
 
-POSES = 32
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
+
 NETWORKS = {
     "light": {},
     "v21-small": {"network": "v21-small", "weights": "random", "calibration": "minmax"},
 }
-
-
-@pytest.fixture(scope="module", autouse=True)
-def one_thread():
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(before)
 
 
 @pytest.fixture(scope="module")
@@ -49,42 +41,27 @@ def view() -> View:
     return View(rgb=v.rgb, pose=v.pose, camera=v.camera)  # RGB only
 
 
-@pytest.fixture(scope="module")
-def targets() -> list[Pose]:
-    rng = np.random.default_rng(1)
-    offsets = rng.uniform(-0.5, 0.5, (POSES, 2))
-    yaws = rng.uniform(-np.pi / 6, np.pi / 6, POSES)
-    return [Pose(float(dx), float(dy), float(yaw)) for (dx, dy), yaw in zip(offsets, yaws, strict=True)]
-
-
-def _per_view(benchmark) -> None:
-    stats = getattr(benchmark, "stats", None)
-    if stats is not None and getattr(stats, "stats", None) is not None:
-        benchmark.extra_info["ms_per_view"] = round(1000 * stats.stats.median, 2)
-        benchmark.extra_info["views_per_s"] = round(1 / stats.stats.median, 1)
-
-
 @pytest.mark.parametrize("network", list(NETWORKS))
-def test_synthesize_new_view(benchmark, view, targets, network):
+def test_synthesize_new_view(benchmark, record_rate, view, targets, network):
     synthesizer = MidasWarp(MidasWarpConfig(device="cpu", **NETWORKS[network]))
     it = iter(targets * 10_000)
     # A fresh View object each call (same pixels): the depth cache never hits.
     syn = benchmark(lambda: synthesizer.synthesize(View(rgb=view.rgb, pose=view.pose, camera=view.camera), next(it)))
     assert syn.view.depth is not None and syn.view.rgb.shape == (256, 256, 3)
-    _per_view(benchmark)
+    record_rate()
 
 
-def test_synthesize_same_view(benchmark, view, targets):
+def test_synthesize_same_view(benchmark, record_rate, view, targets):
     synthesizer = MidasWarp(MidasWarpConfig(device="cpu"))
     it = iter(targets * 10_000)
     syn = benchmark(lambda: synthesizer.synthesize(view, next(it)))
     assert syn.view.depth is not None
-    _per_view(benchmark)
+    record_rate()
 
 
 @pytest.mark.parametrize("network", list(NETWORKS))
-def test_estimate_depth(benchmark, view, network):
+def test_estimate_depth(benchmark, record_rate, view, network):
     synthesizer = MidasWarp(MidasWarpConfig(device="cpu", **NETWORKS[network]))
     depth = benchmark(lambda: synthesizer.estimate_depth([view.rgb]))
     assert depth.shape == (1, 256, 256)
-    _per_view(benchmark)
+    record_rate()

@@ -31,26 +31,19 @@ def poses() -> list[Pose]:
     return [Pose(float(x), float(y), float(a), 1.5) for (x, y), a in zip(xy, yaw, strict=True)]
 
 
-def _views_per_s(benchmark, views: int) -> None:
-    stats = getattr(benchmark, "stats", None)
-    if stats is not None and getattr(stats, "stats", None) is not None:
-        benchmark.extra_info["views_per_s"] = round(views / stats.stats.median, 1)
-        benchmark.extra_info["ms_per_view"] = round(1000 * stats.stats.median / views, 2)
-
-
-def test_render_one_view(benchmark, renderer, poses):
+def test_render_one_view(benchmark, record_rate, renderer, poses):
     """One process, one thread: ~20 ms per view measured on the 2-core dev machine."""
     benchmark.extra_info["triangles"] = renderer.num_triangles
     it = iter(poses * 1000)
     view = benchmark(lambda: renderer.render(next(it)))
     assert view.valid_depth().all()
-    _views_per_s(benchmark, 1)
+    record_rate(1)
 
 
 @pytest.mark.parametrize("workers", [1, 2])
-def test_render_many(benchmark, renderer, poses, workers):
+def test_render_many(benchmark, record_rate, renderer, poses, workers):
     """A batch of views in this process, or in two worker processes (their start-up included)."""
     benchmark.extra_info["triangles"] = renderer.num_triangles
     views = benchmark.pedantic(renderer.render_many, args=(poses,), kwargs={"workers": workers}, rounds=3)
     assert len(views) == BATCH
-    _views_per_s(benchmark, BATCH)
+    record_rate(BATCH)

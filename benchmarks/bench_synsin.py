@@ -14,7 +14,6 @@ Run alone with ``pytest benchmarks/bench_synsin.py -o python_files=bench_*.py --
 
 from __future__ import annotations
 
-import numpy as np
 import pytest
 
 pytest.importorskip("ssga_synthesizer_synsin")
@@ -26,47 +25,23 @@ from ssga_synthesizer_synsin.splat import splat
 
 from ssga_core import Pose
 
-POSES = 32
-
-
-@pytest.fixture(autouse=True)
-def one_thread():
-    """One torch thread unless a test asks for more: on the shared 2-core machine two threads wait on each other."""
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(before)
-
-
-@pytest.fixture(scope="module")
-def targets() -> list[Pose]:
-    rng = np.random.default_rng(1)
-    offsets = rng.uniform(-0.5, 0.5, (POSES, 2))
-    yaws = rng.uniform(-np.pi / 6, np.pi / 6, POSES)
-    return [Pose(float(dx), float(dy), float(yaw)) for (dx, dy), yaw in zip(offsets, yaws, strict=True)]
-
-
-def _views_per_s(benchmark, views: int = 1) -> None:
-    benchmark.extra_info["threads"] = torch.get_num_threads()
-    stats = getattr(benchmark, "stats", None)
-    if stats is not None and getattr(stats, "stats", None) is not None:
-        benchmark.extra_info["views_per_s"] = round(views / stats.stats.median, 2)
-        benchmark.extra_info["ms_per_view"] = round(1000 * stats.stats.median / views, 1)
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 
 @pytest.mark.parametrize("threads", [1, 2])
-def test_synsin_light_one_view(benchmark, targets, threads):
+def test_synsin_light_one_view(benchmark, record_rate, targets, threads):
     """Measured 3.4 views/s with one thread, 0.8 with two (the 2-core machine running two other jobs)."""
     torch.set_num_threads(threads)
+    benchmark.extra_info["threads"] = threads
     synthesizer = SynSinSynthesizer(SynSinConfig(device="cpu"))
     view = make_view(seed=0)
     it = iter(targets * 10_000)
     syn = benchmark.pedantic(lambda: synthesizer.synthesize(view, next(it)), rounds=20, warmup_rounds=2)
     assert syn.view.rgb.shape == (256, 256, 3)
-    _views_per_s(benchmark)
+    record_rate()
 
 
-def test_synsin_light_from_four_views(benchmark, targets):
+def test_synsin_light_from_four_views(benchmark, record_rate, targets):
     """One target from four views 1 m apart, jointly."""
     synthesizer = SynSinSynthesizer(SynSinConfig(device="cpu"))
     views = [
@@ -75,21 +50,21 @@ def test_synsin_light_from_four_views(benchmark, targets):
     it = iter(targets * 10_000)
     out = benchmark.pedantic(lambda: synthesizer.synthesize_from(views, next(it)), rounds=5, warmup_rounds=1)
     assert len(out) == 4
-    _views_per_s(benchmark)
+    record_rate()
 
 
-def test_synsin_official_layout_one_view(benchmark, targets):
+def test_synsin_official_layout_one_view(benchmark, record_rate, targets):
     """The MP3D model's layout: ResNet blocks of width 64-256 at full resolution; about 0.1-0.2 views/s here."""
     synthesizer = SynSinSynthesizer(SynSinConfig(weights="random", network="synsin", device="cpu"))
     view = make_view(seed=0)
     it = iter(targets * 10_000)
     syn = benchmark.pedantic(lambda: synthesizer.synthesize(view, next(it)), rounds=2, warmup_rounds=0)
     assert syn.view.rgb.shape == (256, 256, 3)
-    _views_per_s(benchmark)
+    record_rate()
 
 
 @pytest.mark.parametrize(("radius", "k", "channels"), [(1.5, 8, 16), (4.0, 128, 64)], ids=["light", "official"])
-def test_splat_256px(benchmark, radius, k, channels):
+def test_splat_256px(benchmark, record_rate, radius, k, channels):
     """The splatter alone: 65,536 points with features into one 256 x 256 image."""
     g = torch.Generator().manual_seed(0)
     v, u = torch.meshgrid(torch.arange(256.0), torch.arange(256.0), indexing="ij")
@@ -103,4 +78,4 @@ def test_splat_256px(benchmark, radius, k, channels):
 
     s = benchmark.pedantic(run, rounds=5 if k < 100 else 2, warmup_rounds=1)
     assert s.features.shape == (1, channels, 256, 256)
-    _views_per_s(benchmark)
+    record_rate()

@@ -20,7 +20,6 @@ from ssga_core import Camera, Pose, View  # noqa: E402
 from ssga_core.stages import fuse_syntheses  # noqa: E402
 from ssga_synthesizer_depth_warp.plugin import DepthWarp, DepthWarpConfig  # noqa: E402
 
-POSES = 32
 CONFIGS = {
     "default": {},
     "default-raw": {"fill_holes": "none"},
@@ -56,35 +55,20 @@ def view() -> View:
     return corridor_view()
 
 
-@pytest.fixture(scope="module")
-def targets() -> list[Pose]:
-    rng = np.random.default_rng(1)
-    offsets = rng.uniform(-0.5, 0.5, (POSES, 2))
-    yaws = rng.uniform(-np.pi / 6, np.pi / 6, POSES)
-    return [Pose(float(dx), float(dy), float(yaw)) for (dx, dy), yaw in zip(offsets, yaws, strict=True)]
-
-
-def _ms_per_view(benchmark) -> None:
-    stats = getattr(benchmark, "stats", None)
-    if stats is not None and getattr(stats, "stats", None) is not None:
-        benchmark.extra_info["ms_per_view"] = round(1000 * stats.stats.median, 2)
-        benchmark.extra_info["views_per_s"] = round(1 / stats.stats.median, 1)
-
-
 @pytest.mark.parametrize("name", list(CONFIGS))
-def test_synthesize_one_view(benchmark, view, targets, name):
+def test_synthesize_one_view(benchmark, record_rate, view, targets, name):
     """One 256 x 256 view per call, one thread."""
     synthesizer = DepthWarp(DepthWarpConfig(**CONFIGS[name]))
     it = iter(targets * 10_000)
     syn = benchmark(lambda: synthesizer.synthesize(view, next(it)))
     assert syn.view.rgb.shape == (256, 256, 3)
     benchmark.extra_info["covered"] = round(float((syn.view.depth > 0).mean()), 3)
-    _ms_per_view(benchmark)
+    record_rate()
 
 
 @pytest.mark.parametrize("footprint", ["square", "adaptive"])
 @pytest.mark.parametrize("how", ["fused", "composed"])
-def test_synthesize_from_four_views(benchmark, targets, how, footprint):
+def test_synthesize_from_four_views(benchmark, record_rate, targets, how, footprint):
     """One target from four views (the corridor seen from four places 1 m apart): one joint
     render (``synthesize_from``) or the core's default, four renders composed by depth."""
     views = [corridor_view(pose=Pose(float(dx), float(dy), 0.0)) for dx, dy in ((0, 0), (1, 0), (0, 1), (1, 1))]
@@ -97,4 +81,4 @@ def test_synthesize_from_four_views(benchmark, targets, how, footprint):
 
     result = benchmark((lambda: synthesizer.synthesize_from(views, next(it))) if how == "fused" else composed)
     assert len(result) == 4
-    _ms_per_view(benchmark)
+    record_rate()
