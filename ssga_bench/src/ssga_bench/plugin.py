@@ -16,9 +16,9 @@ from ssga_core import hookimpl
 
 @hookimpl
 def ssga_register_commands(app: typer.Typer) -> None:
-    from ssga_bench.cli import config, extract, parse, run, synthesize, workspace
+    from ssga_bench.cli import compare, config, extract, parse, run, synthesize, workspace
 
-    for module in (config, run, workspace, extract, synthesize, parse):
+    for module in (config, run, workspace, extract, synthesize, parse, compare):
         module.register(app)
 
 

@@ -1,0 +1,62 @@
+"""Two rows of one run, paired on the same test views: did swapping a stage help?
+
+Each row of a report (a variant, the ensemble, a reference) ranks the same test views.
+Row B minus row A, view by view, is a paired difference: its t-interval is far
+narrower than the two rows' own intervals, because what makes one view hard makes it
+hard for both. Per seed of a bench run, and the mean of the seeds' differences with a
+t-interval across seeds (what a rerun on other homes would see).
+
+Reads ``predictions.jsonl`` (written by ``ssga run``), or ``seed-*/predictions.jsonl``
+(``ssga bench``).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ssga_bench.bench import seeds_estimate
+from ssga_bench.evaluation import LEVELS, METRIC_TITLES, METRICS, Estimate, difference_text, mean_interval, per_query
+from ssga_bench.queries import load_predictions
+from ssga_core import InputError
+
+
+def prediction_files(output: Path) -> dict[str, Path]:
+    """``{"seed 0": path, ...}`` of a bench output folder, or ``{"run": path}`` of a run's; none is an error."""
+    if (output / "predictions.jsonl").is_file():
+        return {"run": output / "predictions.jsonl"}
+    seeds = sorted(output.glob("seed-*/predictions.jsonl"), key=lambda p: int(p.parent.name.split("-", 1)[1]))
+    if not seeds:
+        raise InputError(f"{output}: no predictions.jsonl, nor seed-*/predictions.jsonl; expected the output folder of `ssga run` or `ssga bench`")
+    return {p.parent.name.replace("-", " "): p for p in seeds}
+
+
+def paired_differences(records: list[dict[str, Any]], a: str, b: str, metric: str, where: str) -> dict[str, Estimate]:
+    """Per level group, ``metric(b) - metric(a)`` over the views both rows ranked, with its paired interval."""
+    rows = records[0]["rows"] if records else {}
+    for label in (a, b):
+        if label not in rows:
+            raise InputError(f"{where}: no row {label!r}; the rows are: {', '.join(map(repr, rows))}")
+    diff = per_query(np.array([r["rows"][b]["rank"] for r in records]), metric) - per_query(np.array([r["rows"][a]["rank"] for r in records]), metric)
+    level = np.array([r["level"] for r in records])
+    return {g: mean_interval(diff if g == "all" else diff[level == int(g[1])]) for g in LEVELS}
+
+
+def compare(output: Path, a: str, b: str, metrics: tuple[str, ...] = METRICS) -> str:
+    """Markdown: for each metric, row ``b`` minus row ``a`` per seed and level, and the mean over seeds."""
+    files = prediction_files(output)
+    per_seed = {name: load_predictions(path) for name, path in files.items()}
+    lines = [f"# {b} − {a}", "", f"Paired on the same test views of {output}; percentage points, ± half the 95% interval.", ""]
+    for metric in metrics:
+        lines += [f"## {METRIC_TITLES[metric]}", "", "| | " + " | ".join(LEVELS) + " |", "|---|" + "---:|" * len(LEVELS)]
+        by_seed = {name: paired_differences(records, a, b, metric, str(files[name])) for name, records in per_seed.items()}
+        for name, diffs in by_seed.items():
+            lines.append(f"| {name} | " + " | ".join(f"{difference_text(diffs[g])} (n {diffs[g].n})" for g in LEVELS) + " |")
+        if len(by_seed) > 1:
+            means = {g: seeds_estimate([d[g] for d in by_seed.values()]) for g in LEVELS}
+            lines.append(f"| mean of {len(by_seed)} seeds | " + " | ".join(difference_text(means[g]) for g in LEVELS) + " |")
+        lines.append("")
+    lines.append("better / worse: the interval excludes zero; tie: it does not.")
+    return "\n".join(lines) + "\n"

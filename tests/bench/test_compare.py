@@ -1,0 +1,55 @@
+"""``ssga compare``: two rows of a run, paired view by view, per seed and over seeds."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+from typer.testing import CliRunner
+
+from ssga_bench.compare import compare, paired_differences
+from ssga_core import InputError
+from ssga_core.cli import app_with_plugin_commands
+
+
+def write_run(folder, ranks_a, ranks_b, levels):
+    folder.mkdir(parents=True)
+    with open(folder / "predictions.jsonl", "w") as f:
+        for i, (ra, rb, level) in enumerate(zip(ranks_a, ranks_b, levels, strict=True)):
+            f.write(json.dumps({"id": f"t{i}", "level": level, "truth": 0, "rows": {"A": {"rank": ra}, "B": {"rank": rb}}}) + "\n")
+
+
+def test_a_paired_difference_is_the_mean_of_per_view_differences(tmp_path):
+    # B ranks every L1 view first where A ranked it second: +50 MRR points, no spread, "better".
+    write_run(tmp_path / "run", [2, 2, 2, 1, 3], [1, 1, 1, 1, 3], [1, 1, 1, 2, 2])
+    records = [json.loads(line) for line in (tmp_path / "run" / "predictions.jsonl").read_text().splitlines()]
+    diffs = paired_differences(records, "A", "B", "mrr", "run")
+    assert diffs["L1"].value == pytest.approx(50.0) and diffs["L1"].low == pytest.approx(50.0)
+    assert diffs["L2"].value == 0.0 and diffs["L3"].n == 0
+    assert diffs["all"].value == pytest.approx(30.0) and diffs["all"].n == 5
+    top1 = paired_differences(records, "A", "B", "top1", "run")
+    assert top1["L1"].value == pytest.approx(100.0)
+    text = compare(tmp_path / "run", "A", "B")
+    assert "| run | +50.0 better (n 3) |" in text and "mean of" not in text
+
+
+def test_a_bench_folder_gives_each_seed_and_the_mean_over_seeds(tmp_path):
+    write_run(tmp_path / "bench" / "seed-0", [2, 1, 4, 4], [1, 1, 2, 4], [1, 1, 1, 1])
+    write_run(tmp_path / "bench" / "seed-10", [1, 1, 1, 1], [1, 1, 1, 2], [1, 1, 1, 1])
+    text = compare(tmp_path / "bench", "A", "B", metrics=("mrr",))
+    lines = [line for line in text.splitlines() if line.startswith("| seed") or line.startswith("| mean")]
+    assert [line.split(" |")[0] for line in lines] == ["| seed 0", "| seed 10", "| mean of 2 seeds"]
+    seed0 = (50 + 0 + 25 + 0) / 4
+    seed10 = -50 / 4
+    assert f"| mean of 2 seeds | {(seed0 + seed10) / 2:+.1f} ±" in text
+
+
+def test_unknown_rows_and_folders_are_one_line_errors(tmp_path):
+    write_run(tmp_path / "run", [1], [1], [1])
+    with pytest.raises(InputError, match="no row 'C'; the rows are: 'A', 'B'"):
+        compare(tmp_path / "run", "A", "C")
+    runner = CliRunner()
+    result = runner.invoke(app_with_plugin_commands(), ["compare", str(tmp_path / "nothing"), "A", "B"])
+    assert result.exit_code == 1 and "expected the output folder of `ssga run` or `ssga bench`" in result.output
+    result = runner.invoke(app_with_plugin_commands(), ["compare", str(tmp_path / "run"), "A", "B", "--out", str(tmp_path / "c.md")])
+    assert result.exit_code == 0 and (tmp_path / "c.md").read_text() == result.output
