@@ -273,3 +273,23 @@ def test_ssga_variants_reads_configs_as_every_command_does(tmp_path, monkeypatch
     assert len(rows) == 8 and rows[0] == {"label": "SIFT-GT (PDS)", "variant": "PDS", "parser": "semantic", "descriptor": "dense-sift", "synthesizer": "depth-warp"}
     result = runner.invoke(app, ["variants", "--config", "nosuch"])
     assert result.exit_code != 0 and "nosuch: no such config file" in result.output
+
+
+def test_a_preset_may_stand_on_another(tmp_path, ssga_installed_registry, monkeypatch):
+    """``parsers`` stands on ``bench``: a file on ``parsers`` gets both, its own keys on top."""
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "mine.toml").write_text('preset = "parsers"\n[stages]\ndescriptor = { name = "pnv" }\n')
+    mine = load_experiment("mine.toml", ssga_installed_registry)
+    assert [v.label for v in mine.variants][:3] == ["P-SL (PDS)", "P-SL (PSD)", "P-SE (PDS)"]
+    assert mine.workspace.config.rooms == 8 and mine.config.protocol.cells == 10  # bench's, through parsers
+
+
+def test_a_preset_that_names_itself_is_refused(tmp_path, monkeypatch):
+    from ssga_bench import config
+
+    (tmp_path / "a.toml").write_text('preset = "b"\n')
+    (tmp_path / "b.toml").write_text('preset = "a"\n')
+    monkeypatch.setattr(config, "packaged_presets", lambda: ["a", "b"])
+    monkeypatch.setattr(config, "packaged_config", lambda name: tmp_path / name)
+    with pytest.raises(ConfigError, match="'a' names itself through a -> b -> a"):
+        config.with_preset({"preset": "a"}, "mine.toml")

@@ -173,15 +173,18 @@ def config_path(given: str | Path) -> Path:
     return packaged_config(f"{name}.toml") if name in packaged_presets() else path
 
 
-def with_preset(data: dict[str, Any], source: str) -> dict[str, Any]:
-    """``data`` over the packaged experiment its ``preset`` names: top-level keys replace the preset's; a
-    section (table) is merged key by key, unless it names another plugin (``name``), which replaces it."""
+def with_preset(data: dict[str, Any], source: str, seen: tuple[str, ...] = ()) -> dict[str, Any]:
+    """``data`` over the packaged experiment its ``preset`` names (itself over its own preset, if it
+    names one): top-level keys replace the preset's; a section (table) is merged key by key, unless it
+    names another plugin (``name``), which replaces it."""
     name = data.get("preset")
     if name is None:
         return data
     if not isinstance(name, str) or name not in packaged_presets():
         raise ConfigError(source, [f"preset: {name!r} is not a packaged experiment; known: {', '.join(packaged_presets())}"])
-    merged = read_toml(packaged_config(f"{name}.toml"))
+    if name in seen:
+        raise ConfigError(source, [f"preset: {name!r} names itself through {' -> '.join((*seen, name))}"])
+    merged = with_preset(read_toml(packaged_config(f"{name}.toml")), f"{name}.toml", (*seen, name))
     for key, value in data.items():
         base = merged.get(key)
         same_plugin = isinstance(base, dict) and isinstance(value, dict) and value.get("name", base.get("name")) == base.get("name")
