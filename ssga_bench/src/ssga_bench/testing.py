@@ -1,10 +1,17 @@
-"""A stand-in workspace source for tests: an empty square room with colour-banded walls.
+"""Test kit of the benchmark layer.
 
-Register this module on a plugin set (or ``SSGA_PLUGIN_MODULES=ssga_bench.testing``)
-beside :mod:`ssga_core.testing.stages` to run whole experiments on stand-ins in seconds.
+* A stand-in workspace source: an empty square room with colour-banded walls. Register
+  this module on a plugin set (or ``SSGA_PLUGIN_MODULES=ssga_bench.testing``) beside
+  :mod:`ssga_core.testing.stages` to run whole experiments on stand-ins in seconds.
+* :func:`interrupt_training`: a learned plugin's training command stopped mid-run, as
+  its users will stop it (and then resume it).
 """
 
 from __future__ import annotations
+
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
 
 import shapely
 from pydantic import Field
@@ -48,3 +55,30 @@ class _WallWorkspace:
 @hookimpl
 def ssga_register_workspaces() -> list[type[WorkspaceSource]]:
     return [WallWorkspaceSource]
+
+
+def interrupt_training(monkeypatch: Any, run_class: type, train: Callable[[], Any], out: Path, after: int = 3) -> dict[str, Any]:
+    """Run ``train()`` with ``run_class.train_step`` (a :class:`~ssga_bench.training.TrainingRun`'s)
+    interrupted by ``KeyboardInterrupt`` before step ``after + 1``, as a user's Ctrl-C would; returns
+    the training state it left in ``out`` (``state.pt``). The step is whole again afterwards.
+    """
+    from ssga_bench.learned import load_checkpoint
+
+    real_step, taken = run_class.train_step, []
+
+    def interrupted(self: Any, *args: Any) -> Any:
+        if len(taken) == after:
+            raise KeyboardInterrupt
+        taken.append(1)
+        return real_step(self, *args)
+
+    monkeypatch.setattr(run_class, "train_step", interrupted)
+    try:
+        train()
+    except KeyboardInterrupt:
+        pass
+    else:
+        raise AssertionError(f"training ended within {after} steps: nothing was interrupted")
+    finally:
+        monkeypatch.setattr(run_class, "train_step", real_step)
+    return load_checkpoint(out / "state.pt", "training state")

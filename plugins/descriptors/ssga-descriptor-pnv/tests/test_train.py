@@ -7,6 +7,8 @@ import math
 import numpy as np
 import pytest
 import torch
+from ssga_bench.testing import interrupt_training
+from ssga_core.testing import make_view
 from ssga_descriptor_pnv import train
 from ssga_descriptor_pnv.homes import relations
 from ssga_descriptor_pnv.layout import LIGHT_WIDTHS
@@ -14,7 +16,6 @@ from ssga_descriptor_pnv.model import PatchNetVLAD
 from ssga_descriptor_pnv.plugin import Pnv, PnvConfig
 
 from ssga_core import InputError
-from ssga_core.testing import make_view
 
 
 def test_positives_are_near_in_place_and_heading_negatives_far_in_either():
@@ -46,21 +47,9 @@ def test_a_tiny_run_resumes_after_an_interruption_and_exports_loadable_weights(t
         widths=LIGHT_WIDTHS, clusters=4, num_pcs=8, stages=((64, 4),), lr=(1e-4,),
         kmeans_images=6, kmeans_per_image=8, pca_images=12, checkpoint_every=2,
     )
-    steps = []
-    real_step = train._step
-
-    def interrupted(*args):
-        if len(steps) == 3:
-            raise KeyboardInterrupt
-        steps.append(1)
-        return real_step(*args)
-
-    monkeypatch.setattr(train, "_step", interrupted)
-    with pytest.raises(KeyboardInterrupt):
-        train.run_training(config, tmp_path / "run", tmp_path / "out", evaluate_heldout=False, argv=[])
-    state = torch.load(tmp_path / "run" / "state.pt", weights_only=True)
+    first = lambda: train.run_training(config, tmp_path / "run", tmp_path / "out", evaluate_heldout=False, argv=[])  # noqa: E731
+    state = interrupt_training(monkeypatch, train.Run, first, tmp_path / "run")
     assert (state["stage"], state["step"], len(state["history"])) == (0, 2, 2)  # the last checkpoint
-    monkeypatch.setattr(train, "_step", real_step)
     calls = []
     monkeypatch.setattr(train, "render_places", lambda *a, **k: calls.append(a))  # the views come from the cache
     path = train.run_training(config, tmp_path / "run", tmp_path / "out", evaluate_heldout=False, argv=["--out", "run"])

@@ -7,6 +7,8 @@ import json
 import numpy as np
 import pytest
 import torch
+from ssga_bench.testing import interrupt_training
+from ssga_core.testing import make_view
 from ssga_parser_cascade_seg import train
 from ssga_parser_cascade_seg.classes import PROCEDURAL
 from ssga_parser_cascade_seg.evaluate import confusion, scores
@@ -14,7 +16,6 @@ from ssga_parser_cascade_seg.homes import HELDOUT_SEEDS, TRAIN_SEEDS, Labelled, 
 from ssga_parser_cascade_seg.plugin import FILES, CascadeSeg, CascadeSegConfig
 
 from ssga_core import InputError
-from ssga_core.testing import make_view
 
 BENCHMARK_SEEDS = {0, 1, 2}
 OTHER_PLUGINS_SEEDS = set(range(1000, 1008)) | {1100, 1101} | set(range(2000, 2012)) | set(range(2100, 2104)) | set(range(2200, 2204)) | set(range(3000, 3006))
@@ -67,21 +68,9 @@ def test_a_tiny_run_resumes_after_an_interruption_and_exports_loadable_weights(t
     pytest.importorskip("ssga_workspace_procedural")  # the vocabulary check reads its categories
     monkeypatch.setattr("ssga_parser_cascade_seg.homes.render_labelled", painted_walls)
     config = train.TrainConfig(train_seeds=(TRAIN_SEEDS[0],), views_per_home=4, stages=((32, 4, 2),), lr=(1e-3,), checkpoint_every=2)
-    steps = []
-    real_step = train._step
-
-    def interrupted(*args):
-        if len(steps) == 3:
-            raise KeyboardInterrupt
-        steps.append(1)
-        return real_step(*args)
-
-    monkeypatch.setattr(train, "_step", interrupted)
-    with pytest.raises(KeyboardInterrupt):
-        train.run_training(config, tmp_path / "run", tmp_path / "out", evaluate_heldout=False, argv=[])
-    state = torch.load(tmp_path / "run" / "state.pt", weights_only=True)
+    first = lambda: train.run_training(config, tmp_path / "run", tmp_path / "out", evaluate_heldout=False, argv=[])  # noqa: E731
+    state = interrupt_training(monkeypatch, train.Run, first, tmp_path / "run")
     assert (state["stage"], state["step"], len(state["history"])) == (0, 2, 2)  # the last checkpoint
-    monkeypatch.setattr(train, "_step", real_step)
     calls = []
     monkeypatch.setattr("ssga_parser_cascade_seg.homes.render_labelled", lambda *a, **k: calls.append(a))  # the views come from the cache
     folder = train.run_training(config, tmp_path / "run", tmp_path / "out", evaluate_heldout=False, argv=["--out", "run"])

@@ -5,13 +5,12 @@ from __future__ import annotations
 import json
 
 import numpy as np
-import pytest
 import torch
+from ssga_bench.testing import interrupt_training
+from ssga_core.testing import make_view
 from ssga_synthesizer_midas_warp import train
 from ssga_synthesizer_midas_warp.homes import Views
 from ssga_synthesizer_midas_warp.plugin import MidasWarp, MidasWarpConfig
-
-from ssga_core.testing import make_view
 
 
 def ramps(seed: int, count: int, *, progress=None, size: int = 64) -> Views:
@@ -33,20 +32,9 @@ def test_a_tiny_run_resumes_after_an_interruption_and_exports_calibrated_weights
         train_seeds=(2000,), views_per_home=6, stages=((32, 4, 2), (64, 2, 2)), lr=(1e-3, 1e-4),
         calibration_seeds=(2100,), calibration_views=4, checkpoint_every=2,
     )
-    real_step, steps = train.Run.train_step, []
-
-    def interrupted(self, *args):
-        if len(steps) == 3:
-            raise KeyboardInterrupt
-        steps.append(1)
-        return real_step(self, *args)
-
-    monkeypatch.setattr(train.Run, "train_step", interrupted)
-    with pytest.raises(KeyboardInterrupt):
-        train.run_training(config, tmp_path / "run", tmp_path / "out", evaluate_heldout=False, argv=[])
-    state = torch.load(tmp_path / "run" / "state.pt", weights_only=True)
+    first = lambda: train.run_training(config, tmp_path / "run", tmp_path / "out", evaluate_heldout=False, argv=[])  # noqa: E731
+    state = interrupt_training(monkeypatch, train.Run, first, tmp_path / "run")
     assert (state["stage"], state["step"], len(state["history"])) == (0, 2, 2)  # the last checkpoint
-    monkeypatch.setattr(train.Run, "train_step", real_step)
     path = train.run_training(config, tmp_path / "run", tmp_path / "out", evaluate_heldout=False, argv=["--out", "run"])
     history = torch.load(tmp_path / "run" / "state.pt", weights_only=True)["history"]
     assert [(int(h[0]), int(h[1])) for h in history] == [(0, 1), (0, 2), (0, 3), (0, 4), (1, 1), (1, 2)]

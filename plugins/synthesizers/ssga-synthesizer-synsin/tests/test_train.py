@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import torch
+from ssga_bench.testing import interrupt_training
 from ssga_core.testing import make_view
 from ssga_synthesizer_synsin import train
 from ssga_synthesizer_synsin.model import SynSinLight, render
@@ -66,21 +67,9 @@ def test_a_tiny_run_resumes_after_an_interruption_and_exports_loadable_weights(t
         train_seeds=(3000,), pairs_per_home=6, stages=((32, 4, 2), (64, 2, 1)), lr=(1e-3, 1e-4), checkpoint_every=2
     )
     monkeypatch.setattr(train, "render_pairs", fake_pairs)
-    steps = []
-    real_step = train._step
-
-    def interrupted(*args):
-        if len(steps) == 3:
-            raise KeyboardInterrupt
-        steps.append(1)
-        return real_step(*args)
-
-    monkeypatch.setattr(train, "_step", interrupted)
-    with pytest.raises(KeyboardInterrupt):
-        train.run_training(config, tmp_path / "run", tmp_path / "out", evaluate_heldout=False, argv=[])
-    state = torch.load(tmp_path / "run" / "state.pt", weights_only=True)
+    first = lambda: train.run_training(config, tmp_path / "run", tmp_path / "out", evaluate_heldout=False, argv=[])  # noqa: E731
+    state = interrupt_training(monkeypatch, train.Run, first, tmp_path / "run")
     assert (state["stage"], state["step"], len(state["history"])) == (0, 2, 2)  # the last checkpoint
-    monkeypatch.setattr(train, "_step", real_step)
     monkeypatch.setattr(train, "render_pairs", lambda *a, **k: pytest.fail("the pairs come from the cache"))
     path = train.run_training(config, tmp_path / "run", tmp_path / "out", evaluate_heldout=False, argv=["--out", "run"])
     checkpoint = torch.load(path, weights_only=True)
