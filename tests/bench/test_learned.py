@@ -65,3 +65,31 @@ def test_cuda_asked_without_cuda_is_an_error():
     assert resolve_device("auto").type == "cpu"
     with pytest.raises(InputError, match="sees no CUDA device"):
         resolve_device("cuda")
+
+
+class Loaded(Learned):
+    """A stage whose network and vocabulary come from ``_load`` (counted), as detic's do."""
+
+    reloaded = ("net", "names")
+    loads = 0
+
+    def __init__(self) -> None:
+        self.config = LearnedConfig()
+        self.net, self.names = self._load()
+
+    def _load(self):
+        type(self).loads += 1
+        torch.manual_seed(0)  # as a stage on random weights: the same network in every process
+        return net(), ("wall", "floor")
+
+
+def test_a_pickled_stage_loads_its_own_network_instead_of_carrying_it():
+    import pickle
+
+    stage = Loaded()
+    data = pickle.dumps(stage)
+    assert b"torch" not in data and len(data) < 1000, "the network is not in the pickle"
+    copy = pickle.loads(data)
+    assert Loaded.loads == 2 and copy.names == ("wall", "floor")
+    assert all(torch.equal(a, b) for a, b in zip(stage.net.state_dict().values(), copy.net.state_dict().values(), strict=True))
+    assert pickle.loads(pickle.dumps(Learned())).__dict__ == {}, "a stage that reloads nothing pickles as it is"

@@ -30,7 +30,7 @@ from __future__ import annotations
 
 import io
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Literal
+from typing import TYPE_CHECKING, Any, ClassVar, Literal
 
 from pydantic import Field
 
@@ -63,6 +63,24 @@ class Learned:
     config: Any
     name: str
     kind: str
+
+    reloaded: ClassVar[tuple[str, ...]] = ()
+    """The attributes ``self._load()`` returns, in order (the network, and what comes with it):
+    a stage pickled for a worker process leaves them out, and the worker loads its own copy,
+    from the file or from the same seed, instead of receiving a network through a pipe."""
+
+    def __getstate__(self) -> dict[str, Any]:
+        state = self.__dict__.copy()
+        for name in self.reloaded:
+            state.pop(name, None)
+        return state
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        self.__dict__.update(state)
+        if self.reloaded:
+            loaded = self._load()  # type: ignore[attr-defined]
+            for name, value in zip(self.reloaded, loaded if len(self.reloaded) > 1 else (loaded,), strict=True):
+                setattr(self, name, value)
 
     @classmethod
     def caveat(cls, config: Any) -> str:

@@ -97,6 +97,7 @@ class Pnv(Learned, BoWDescriptor):
     name = "pnv"
     abbrev = "P"  # the paper's tables: "P (DS)", "P-SL (PDS)"
     Config = PnvConfig
+    reloaded = ("net",)
     presets = {
         "light": {},
         "mapillary": {"network": "vgg16", "weights": "mapillary_WPCA512.pth.tar"},
@@ -150,15 +151,6 @@ class Pnv(Learned, BoWDescriptor):
         net = PatchNetVLAD(NETWORKS[cfg.network], clusters, cfg.num_pcs, cfg.patch_size, cfg.stride)
         load_strict(net, state, self.who, path, expected)
         return net
-
-    def __getstate__(self) -> dict[str, Any]:
-        state = self.__dict__.copy()
-        state.pop("net", None)  # worker processes load their own copy (from the file, or the same seed)
-        return state
-
-    def __setstate__(self, state: dict[str, Any]) -> None:
-        self.__dict__.update(state)
-        self.net = self._load()
 
     def _extract(self, view: View) -> LocalFeatures:
         import torch

@@ -127,6 +127,7 @@ class CascadeSeg(Learned, Parser):
     name = "cascade-seg"
     abbrev = "SE"  # the paper's tables: "P-SE (PDS)"
     Config = CascadeSegConfig
+    reloaded = ("net",)
     consumes = frozenset({Data.RGB})
     presets = {
         "light": {},
@@ -221,15 +222,6 @@ class CascadeSeg(Learned, Parser):
                 state = plain_batch_norm_state(state, module)
             load_strict(module, state, self.who, path, expected)
         return net
-
-    def __getstate__(self) -> dict[str, Any]:
-        state = self.__dict__.copy()
-        state.pop("net", None)  # worker processes load their own copy (from the files, or the same seed)
-        return state
-
-    def __setstate__(self, state: dict[str, Any]) -> None:
-        self.__dict__.update(state)
-        self.net = self._load()
 
     # ------------------------------------------------------------------ parsing
 

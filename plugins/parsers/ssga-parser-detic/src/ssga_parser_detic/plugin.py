@@ -94,6 +94,7 @@ class DeticParser(Learned, Parser):
     name = "detic"
     abbrev = "DE"  # the paper's tables: "P-DE (PDS)"
     Config = DeticConfig
+    reloaded = ("net", "names")
     presets = {
         "demo": {"resize": "shortest-edge", "test_size": 800, "max_size": 1333},
         "all-classes": {"one_class_per_proposal": False},
@@ -170,15 +171,6 @@ class DeticParser(Learned, Parser):
         expected = f"a detectron2 checkpoint {{'model': state dict}} of Detic's ResNet-50 configuration, as {R50_CHECKPOINT} ({layout(net)})"
         load_state(net, load_checkpoint(path, self.who, expected), self.who, path, expected)
         return net
-
-    def __getstate__(self) -> dict[str, Any]:
-        state = self.__dict__.copy()
-        state.pop("net", None)  # worker processes load their own copy (from the files, or the same seed)
-        return state
-
-    def __setstate__(self, state: dict[str, Any]) -> None:
-        self.__dict__.update(state)
-        self.net, self.names = self._load()
 
     # ------------------------------------------------------------------ parsing
 

@@ -93,6 +93,7 @@ class SynSinSynthesizer(Learned, Synthesizer):
     name = "synsin"
     abbrev = "SS"
     Config = SynSinConfig
+    reloaded = ("net",)
     consumes = frozenset({Data.RGB})
     produces = frozenset({Data.RGB, Data.DEPTH, Data.POINT_MAP})
     presets = {
@@ -174,15 +175,6 @@ class SynSinSynthesizer(Learned, Synthesizer):
             state, _ = official_state_dict(state, net.state_dict())
         load_strict(net, state, self.who, path, expected)
         return net
-
-    def __getstate__(self) -> dict[str, Any]:
-        state = self.__dict__.copy()
-        state.pop("net", None)  # worker processes load their own copy (from the file, or the same seed)
-        return state
-
-    def __setstate__(self, state: dict[str, Any]) -> None:
-        self.__dict__.update(state)
-        self.net = self._load()
 
     # ------------------------------------------------------------------ synthesis
 
