@@ -49,7 +49,7 @@ from pathlib import Path
 
 import numpy as np
 from ssga_bench.dataset import Dataset
-from ssga_bench.synthesis_quality import Tally, move, on_surface, seen_mask
+from ssga_bench.synthesis_quality import QualityTally, move, on_surface, seen_mask
 from ssga_core.config import resolve_stage
 from ssga_core.plugins import default_registry
 from ssga_core.stages import fuse_syntheses
@@ -69,9 +69,9 @@ def drawn_mask(view: View) -> np.ndarray:
 class Report:
     """The scores of one way of synthesizing, over all its (sources, target) pairs."""
 
-    seen: Tally = field(default_factory=Tally)
-    drawn: Tally = field(default_factory=Tally)
-    image: Tally = field(default_factory=Tally)
+    seen: QualityTally = field(default_factory=QualityTally)
+    drawn: QualityTally = field(default_factory=QualityTally)
+    image: QualityTally = field(default_factory=QualityTally)
     pairs: int = 0
     pixels: int = 0
     seen_drawn: int = 0

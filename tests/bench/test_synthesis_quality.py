@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from ssga_bench.synthesis_quality import Tally, seen_mask
+from ssga_bench.synthesis_quality import QualityTally, seen_mask
 from ssga_core import Pose
 from ssga_core.testing import make_view
 
@@ -31,7 +31,7 @@ def test_psnr_and_ssim_pool_only_the_masked_pixels():
     truth = make_view(size=64).rgb
     mask = np.zeros(truth.shape[:2], dtype=bool)
     mask[:, :32] = True
-    exact, off = Tally(), Tally()
+    exact, off = QualityTally(), QualityTally()
     exact.add(truth.copy(), truth, mask)
     assert exact.psnr == math.inf and exact.ssim == pytest.approx(1.0)
     shifted = truth.astype(np.int16)
@@ -43,4 +43,4 @@ def test_psnr_and_ssim_pool_only_the_masked_pixels():
     assert off.pixels == 2 * 64 * 32
     assert off.psnr == pytest.approx(10 * np.log10(255**2 / (clipped.astype(float) ** 2).mean()), rel=1e-9)
     assert 0.5 < off.ssim < 1.0
-    assert math.isnan(Tally().psnr) and math.isnan(Tally().ssim)
+    assert math.isnan(QualityTally().psnr) and math.isnan(QualityTally().ssim)

@@ -39,6 +39,9 @@ _EXPORTS = {
     "export_checkpoint": "ssga_bench.training",
     "cosine_lr": "ssga_bench.training",
     "poly_lr": "ssga_bench.training",
+    # how good a synthesis is, against the true render
+    "QualityTally": "ssga_bench.synthesis_quality",
+    "seen_mask": "ssga_bench.synthesis_quality",
     # files: atomic writes, one-line read errors
     "OutputError": "ssga_bench.io",
     "atomic_write_bytes": "ssga_bench.io",

@@ -5,7 +5,7 @@
   depth there (within :data:`TOLERANCE`). It does not depend on the synthesizer, so
   synthesizers are compared on the same pixels; a seen pixel a synthesis left empty
   counts (as black). The content a synthesis can hope to get right.
-* :class:`Tally`: PSNR of the pooled mean squared error and SSIM (scikit-image's
+* :class:`QualityTally`: PSNR of the pooled mean squared error and SSIM (scikit-image's
   ``structural_similarity``: Gaussian window, sigma 1.5, per colour channel) averaged
   over the masked pixels of every pair added. For a mask, the synthetic image takes the
   true render's pixels outside it, so that an SSIM window straddling the mask's edge
@@ -71,7 +71,7 @@ def seen_mask(truth: View, sources: Iterable[View]) -> np.ndarray:
 
 
 @dataclass
-class Tally:
+class QualityTally:
     """PSNR and SSIM of one mask, pooled over pairs."""
 
     pixels: int = 0

@@ -43,7 +43,7 @@ from typing import Any
 
 import numpy as np
 
-from ssga_bench.synthesis_quality import Tally, seen_mask
+from ssga_bench import QualityTally, seen_mask
 from ssga_synthesizer_synsin.pairs import HELDOUT_SEEDS, Pairs, render_pairs
 
 
@@ -66,8 +66,8 @@ def render_heldout(spec: HeldOut = HeldOut(), progress: Callable[[str], None] | 
 
 @dataclass
 class Scores:
-    seen: Tally = field(default_factory=Tally)
-    image: Tally = field(default_factory=Tally)
+    seen: QualityTally = field(default_factory=QualityTally)
+    image: QualityTally = field(default_factory=QualityTally)
     pairs: int = 0
     seconds: float = 0.0
 
