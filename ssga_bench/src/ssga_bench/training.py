@@ -141,10 +141,10 @@ class TrainingRun:
                 lr = self.learning_rate(stage, step, steps)
                 for group in optimizer.param_groups:
                     group["lr"] = lr
-                figures = [float(f) for f in self.train_step(net, optimizer, stage, stage_data, np.random.default_rng([c.seed, self.rng_stream, stage, step]))]
+                values = [float(v) for v in self.train_step(net, optimizer, stage, stage_data, np.random.default_rng([c.seed, self.rng_stream, stage, step]))]
                 step += 1
-                window.append(figures)
-                history.append([stage, step, *figures])
+                window.append(values)
+                history.append([stage, step, *values])
                 if step % c.checkpoint_every == 0 or step == steps:
                     elapsed = time.perf_counter() - t0
                     self.timed(f"stage{stage + 1}", elapsed)
