@@ -2,11 +2,9 @@
 
 from __future__ import annotations
 
-import dataclasses
 import datetime
 import json
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 import pytest
@@ -23,9 +21,6 @@ class Config:
     lr: tuple[float, ...] = (0.1, 0.01)
     checkpoint_every: int = 2
     seed: int = 0
-
-    def to_json(self) -> dict[str, Any]:
-        return json.loads(json.dumps(dataclasses.asdict(self)))
 
 
 class Interrupted(Exception):

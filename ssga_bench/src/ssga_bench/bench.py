@@ -17,7 +17,7 @@ import numpy as np
 from ssga_core.errors import InputError
 from ssga_core.plugins import Registry
 from ssga_bench.config import Experiment, validate_experiment
-from ssga_bench.evaluation import METRIC_TITLES, METRICS, THIN, Estimate, Report, difference_text, mean_interval
+from ssga_bench.evaluation import METRIC_TITLES, METRICS, THIN, Report, difference_text, seeds_estimate
 from ssga_bench.experiment import Progress, run
 from ssga_bench.io import atomic_write_bytes, writable_folder, write_json
 
@@ -89,18 +89,6 @@ def run_bench(
 
 TRAIN_SHARE_TARGET = 15.0
 """Percent of wall time the GCN training phase should stay under."""
-
-
-def seeds_estimate(estimates: Sequence[Estimate]) -> Estimate:
-    """Mean over seeds with a 95% t-interval across them; one seed: its own per-query interval.
-
-    Across seeds rather than pooled queries: the seeds differ in their training and test
-    draws, and that spread is what a rerun would see.
-    """
-    present = [e for e in estimates if not np.isnan(e.value)]  # a seed whose draw left a group empty
-    if len(present) == 1:
-        return present[0]
-    return mean_interval(np.array([e.value for e in present]))
 
 
 def _seed_table(runs: dict[int, SeedRun]) -> list[str]:

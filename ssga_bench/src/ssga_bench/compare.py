@@ -17,8 +17,7 @@ from typing import Any
 
 import numpy as np
 
-from ssga_bench.bench import seeds_estimate
-from ssga_bench.evaluation import LEVELS, METRIC_TITLES, METRICS, Estimate, difference_text, mean_interval, per_query
+from ssga_bench.evaluation import LEVELS, METRIC_TITLES, METRICS, Estimate, difference_text, mean_interval, per_query, seeds_estimate
 from ssga_bench.queries import load_predictions
 from ssga_core import InputError
 

@@ -114,6 +114,18 @@ def mean_interval(values: np.ndarray) -> Estimate:
     return Estimate(mean, mean - half, mean + half, n)
 
 
+def seeds_estimate(estimates: Sequence[Estimate]) -> Estimate:
+    """Mean over seeds with a 95% t-interval across them; one seed: its own per-query interval.
+
+    Across seeds rather than pooled queries: the seeds differ in their training and test
+    draws, and that spread is what a rerun would see.
+    """
+    present = [e for e in estimates if not np.isnan(e.value)]  # a seed whose draw left a group empty
+    if len(present) == 1:
+        return present[0]
+    return mean_interval(np.array([e.value for e in present]))
+
+
 def rate_interval(hits: np.ndarray) -> Estimate:
     """Share of true ``hits``, in percent, with its 95% Wilson score interval."""
     hits = np.asarray(hits, dtype=bool)

@@ -22,7 +22,8 @@ loop; a plugin subclasses it with four hooks::
     net, history = Run(config, out).train(net, optimizer, data)
 
 The config is a frozen dataclass with ``stages`` (``(size, steps, batch, ...)``
-tuples), ``lr`` (one per stage), ``checkpoint_every``, ``seed`` and ``to_json()``.
+tuples), ``lr`` (one per stage), ``checkpoint_every`` and ``seed``; :func:`config_json` is
+what a run folder and the exported weights record of it.
 :func:`training_provenance`, :func:`export_checkpoint` and :func:`training_main` give every
 plugin the same provenance record, exported files and command line.
 """
@@ -52,6 +53,14 @@ if TYPE_CHECKING:
 def training_log(message: str) -> None:
     """One timestamped progress line of a training command."""
     print(f"[{datetime.datetime.now().strftime('%H:%M:%S')}] {message}", flush=True)
+
+
+def config_json(config: Any) -> dict[str, Any]:
+    """A training config (a dataclass) as JSON: tuples become lists, as they read back from a file."""
+    import dataclasses
+    import json
+
+    return json.loads(json.dumps(dataclasses.asdict(config)))
 
 
 def cosine_lr(peak: float, step: int, steps: int, floor: float = 0.1) -> float:
@@ -86,10 +95,10 @@ class TrainingRun:
         out.mkdir(parents=True, exist_ok=True)
         stored = out / "config.json"
         if stored.is_file():
-            if read_json(stored) != config.to_json():
+            if read_json(stored) != config_json(config):
                 raise InputError(f"{out}: holds a run of another config ({stored}); use a new --out or delete it")
         else:
-            write_json(stored, config.to_json())
+            write_json(stored, config_json(config))
         times = out / "times.json"
         self.times: dict[str, float] = read_json(times) if times.is_file() else {}
 
@@ -198,7 +207,7 @@ def training_provenance(what: str, module: str, argv: Sequence[str] | None, star
         "command": command_line(module, argv),
         "date": started.isoformat(timespec="seconds"),
         **extra,
-        "config": config.to_json(),
+        "config": config_json(config),
         "figures": figures,
         "torch": str(torch.__version__),
         "python": platform.python_version(),

@@ -29,15 +29,12 @@ on from the last checkpoint in ``--out``):
 
 from __future__ import annotations
 
-import dataclasses
 import datetime
-import json
 import sys
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import torch
@@ -87,9 +84,6 @@ class TrainConfig:
     heldout: HeldOut = field(default_factory=HeldOut)
     checkpoint_every: int = 50
     seed: int = 0
-
-    def to_json(self) -> dict[str, Any]:
-        return json.loads(json.dumps(dataclasses.asdict(self)))
 
 
 class Run(TrainingRun):

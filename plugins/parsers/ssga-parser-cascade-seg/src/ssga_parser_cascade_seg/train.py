@@ -30,10 +30,8 @@ from the last checkpoint in ``--out``):
 
 from __future__ import annotations
 
-import dataclasses
 import datetime
 import hashlib
-import json
 import sys
 import time
 from collections.abc import Sequence
@@ -84,9 +82,6 @@ class TrainConfig:
     checkpoint_every: int = 50
     seed: int = 0
 
-    def to_json(self) -> dict[str, Any]:
-        return json.loads(json.dumps(dataclasses.asdict(self)))
-
 
 class Run(TrainingRun):
     """One training run in ``out``: its view caches, checkpoints and timings."""
@@ -104,9 +99,6 @@ class Run(TrainingRun):
 
     def initial(self) -> SceneParser:
         return init_weights(SceneParser(LIGHT, len(PROCEDURAL)), self.config.seed)
-
-    def begin_stage(self, stage: int, data: Labelled) -> tuple[Labelled, torch.Tensor]:
-        return data, class_weights(class_pixels(data.labels, len(PROCEDURAL)), self.config.class_balance)
 
     def learning_rate(self, stage: int, step: int, steps: int) -> float:
         return poly_lr(self.config.lr[stage], step, steps)
@@ -199,11 +191,13 @@ def run_training(config: TrainConfig, out: Path, export_to: Path, *, evaluate_he
     init = run.initial()
     net = SceneParser(LIGHT, len(PROCEDURAL))
     net.load_state_dict(init.state_dict())
-    net, history = run.train(net, torch.optim.AdamW(net.parameters(), lr=config.lr[0], weight_decay=config.weight_decay), data)
-    figures = run.figures(history)
     pixels = class_pixels(data.labels, len(PROCEDURAL))
+    weight = class_weights(pixels, config.class_balance)
+    optimizer = torch.optim.AdamW(net.parameters(), lr=config.lr[0], weight_decay=config.weight_decay)
+    net, history = run.train(net, optimizer, (data, weight))  # train_step gets the views and the class weights
+    figures = run.figures(history)
     figures["train_pixels"] = {name: int(n) for name, n in zip(PROCEDURAL, pixels, strict=True)}
-    figures["class_weights"] = {name: round(float(w), 3) for name, w in zip(PROCEDURAL, class_weights(pixels, config.class_balance), strict=True)}
+    figures["class_weights"] = {name: round(float(w), 3) for name, w in zip(PROCEDURAL, weight, strict=True)}
     if evaluate_heldout:
         held = run.views(config.heldout_seeds, config.heldout_views, "render held-out")
         figures["heldout"] = {}

@@ -25,7 +25,6 @@ from the last checkpoint in ``--out``):
 
 from __future__ import annotations
 
-import dataclasses
 import datetime
 import json
 import sys
@@ -66,9 +65,6 @@ class TrainConfig:
     checkpoint_every: int = 25
     seed: int = 0
 
-    def to_json(self) -> dict[str, Any]:
-        return json.loads(json.dumps(dataclasses.asdict(self)))
-
 
 class Run(TrainingRun):
     """One training run in ``out``: its caches, checkpoints and timings."""
@@ -95,9 +91,6 @@ class Run(TrainingRun):
 
     metrics = ("loss", "l1", "ssim", "log_depth_l1")
     unit = "pairs"
-
-    def begin_stage(self, stage: int, data: Pairs) -> tuple[Pairs, np.ndarray]:
-        return data, _moves(data)
 
     def train_step(self, net, optimizer, stage, data, rng) -> list[float]:
         pairs, moves = data
@@ -227,7 +220,7 @@ def run_training(
     init = SynSinLight(LightOptions())
     net = SynSinLight(LightOptions())
     net.load_state_dict(init.state_dict())
-    net, history = run.train(net, torch.optim.Adam(net.parameters(), lr=config.lr[0]), data)
+    net, history = run.train(net, torch.optim.Adam(net.parameters(), lr=config.lr[0]), (data, _moves(data)))  # the pairs and their moves
     figures = run.figures(history)
     if evaluate_heldout:
         t = time.perf_counter()
