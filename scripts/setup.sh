@@ -51,7 +51,10 @@ echo "torch==$(torch_version)" > "$constraints"
 echo "setup: installing ssga-core and its plugins, ${#packages[@]} packages (editable)"
 pip -c "$constraints" hatchling editables
 editables=()
-for p in "${packages[@]}"; do editables+=(-e "$p"); done
+# ssga-bench with its `ray` extra: the distributed executor is part of the set-up.
+for p in "${packages[@]}"; do
+    if [ "$p" = ssga_bench ]; then editables+=(-e "$p[ray]"); else editables+=(-e "$p"); fi
+done
 pip -c "$constraints" --no-build-isolation "${editables[@]}" -r requirements-dev.txt
 # Test-only reference code whose declared dependencies must not come along (see the file).
 pip -c "$constraints" --no-deps -r requirements-nodeps.txt

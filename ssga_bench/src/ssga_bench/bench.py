@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 
@@ -18,15 +18,19 @@ from ssga_core.errors import InputError
 from ssga_core.plugins import Registry
 from ssga_bench.config import Experiment, validate_experiment
 from ssga_bench.evaluation import METRIC_TITLES, METRICS, THIN, Report, difference_text, seeds_estimate
+from ssga_bench.execution import open_executor
 from ssga_bench.experiment import Progress, run
 from ssga_bench.io import atomic_write_bytes, writable_folder, write_json
 
 
 @dataclass(frozen=True)
 class SeedRun:
+    """One seed's run: its report, the work per stage and phase (summed over workers), its wall time and wall phases."""
+
     report: Report
     seconds: dict[str, float]
     wall: float
+    phases: dict[str, float] = field(default_factory=dict)
 
 
 def parse_seeds(text: str) -> list[int]:
@@ -72,15 +76,17 @@ def run_bench(
     experiments = {seed: seed_experiment(base, seed, registry, test_per_class) for seed in seeds}
     out = writable_folder(output or base.config.output)
     runs: dict[int, SeedRun] = {}
-    for seed, experiment in experiments.items():
-        if on_seed:
-            on_seed(seed)
-        start = time.perf_counter()
-        folder = out / f"seed-{seed}"
-        report, timings = run(experiment=experiment, output=folder, progress=progress, variant_progress=variant_progress)
-        runs[seed] = SeedRun(report, dict(timings.seconds), time.perf_counter() - start)
-        if on_result:
-            on_result(seed, report, folder)
+    # One executor for every seed: workers start once and keep what they opened.
+    with open_executor(base.config.execution) as executor:
+        for seed, experiment in experiments.items():
+            if on_seed:
+                on_seed(seed)
+            start = time.perf_counter()
+            folder = out / f"seed-{seed}"
+            report, timings = run(experiment=experiment, output=folder, progress=progress, variant_progress=variant_progress, executor=executor)
+            runs[seed] = SeedRun(report, dict(timings.seconds), time.perf_counter() - start, dict(timings.wall))
+            if on_result:
+                on_result(seed, report, folder)
     summary = bench_summary(runs)
     atomic_write_bytes(out / "bench.md", summary.encode())
     write_json(out / "bench.json", {str(s): {"wall_s": r.wall, "seconds": r.seconds, "table": r.report.table} for s, r in runs.items()})

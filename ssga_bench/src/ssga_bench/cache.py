@@ -3,8 +3,16 @@
 Keys are a hash of the view's content (its arrays) and of the stage's name and config,
 so a cache folder can be shared by runs and variants: the eight variants of one
 experiment parse and describe each real query image once, and a resumed or repeated
-run reuses everything. Entries are ``.npz`` files written atomically; those of synthetic
-views are kept in memory only, for the variants of one run that render the same view.
+run reuses everything. Entries are ``.npz`` files written atomically.
+
+Memory stays bounded by :data:`MEMORY_ENTRIES`, not by the run: with a folder, real
+views' entries are read from disk when asked for (a few hundred microseconds each), not
+kept; synthetic views' entries (as many as the pseudo-views, whatever the number of test
+views) are kept, the least recently used dropped first.
+
+Before the variants run, the experiment fills the cache for every real view in batches
+(:func:`ssga_bench.tasks.describe_views`, on the executor's workers): :func:`compute_many`
+runs a stage over a batch, :meth:`FeatureCache.put` stores what a worker sent back.
 """
 
 from __future__ import annotations
@@ -12,7 +20,8 @@ from __future__ import annotations
 import hashlib
 import io
 import zipfile
-from collections.abc import Callable
+from collections import OrderedDict
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import TypeVar
 
@@ -24,6 +33,9 @@ from ssga_bench.io import atomic_write_bytes, warn
 from ssga_core.stages import LocalDescriptor, Parser, Stage
 
 T = TypeVar("T")
+
+MEMORY_ENTRIES = 4096
+"""Entries kept in memory at most (synthetic views' local features: ~75 kB each with dense SIFT)."""
 
 
 def view_key(view: View) -> str:
@@ -46,12 +58,27 @@ class FeatureCache:
 
     def __init__(self, root: str | Path | None = None) -> None:
         self.root = Path(root) if root is not None else None
-        self._memory: dict[tuple[str, str], object] = {}
+        self._memory: OrderedDict[tuple[str, str], dict[str, np.ndarray]] = OrderedDict()
+
+    def _remember(self, key: tuple[str, str], arrays: dict[str, np.ndarray]) -> None:
+        self._memory[key] = arrays
+        self._memory.move_to_end(key)
+        while len(self._memory) > MEMORY_ENTRIES:
+            self._memory.popitem(last=False)
+
+    def has(self, key: tuple[str, str]) -> bool:
+        """Whether the entry ``(stage key, view key)`` is stored (in memory or on disk)."""
+        return key in self._memory or (self.root is not None and (self.root / key[0] / f"{key[1]}.npz").exists())
+
+    def put(self, key: tuple[str, str], arrays: dict[str, np.ndarray]) -> None:
+        """Store an entry computed elsewhere (by a worker, :func:`compute_many`)."""
+        self._store(key, arrays)
 
     def _load(self, stage: Stage, view: View, unpack: Callable[[dict[str, np.ndarray]], T]) -> tuple[tuple[str, str], T | None]:
         key = (stage_key(stage), view_key(view))
         if key in self._memory:
-            return key, unpack(self._memory[key])  # type: ignore[arg-type]
+            self._memory.move_to_end(key)
+            return key, unpack(self._memory[key])
         if self.root is not None:
             path = self.root / key[0] / f"{key[1]}.npz"
             if path.exists():
@@ -65,43 +92,53 @@ class FeatureCache:
                     detail = " ".join(str(exc).split())[:120]
                     warn(f"{path}: damaged cache entry ({type(exc).__name__}: {detail}); computing it again")
                     return key, None
-                self._memory[key] = arrays
                 return key, value
         return key, None
 
     def _store(self, key: tuple[str, str], arrays: dict[str, np.ndarray]) -> None:
-        self._memory[key] = arrays
-        if self.root is not None:
-            buf = io.BytesIO()
-            np.savez_compressed(buf, **arrays)
-            atomic_write_bytes(self.root / key[0] / f"{key[1]}.npz", buf.getvalue())
+        if self.root is None:
+            self._remember(key, arrays)
+            return
+        buf = io.BytesIO()
+        np.savez_compressed(buf, **arrays)
+        atomic_write_bytes(self.root / key[0] / f"{key[1]}.npz", buf.getvalue())
 
     def _cached(self, stage: Stage, view: View, compute: Callable[[View], T], pack: Callable[[T], dict[str, np.ndarray]], unpack: Callable[[dict[str, np.ndarray]], T]) -> T:
-        if view.synthetic:
-            # Kept in memory only, for the run: variants that render the same pseudo-view
-            # (SD, SPD and DSP share their syntheses) describe and parse it once.
-            key = (stage_key(stage), view_key(view))
-            if key not in self._memory:
-                self._memory[key] = pack(compute(view))
-            return unpack(self._memory[key])  # type: ignore[arg-type]
         key, value = self._load(stage, view, unpack)
         if value is None:
             arrays = pack(compute(view))
             self._store(key, arrays)
+            if view.synthetic:
+                # Kept in memory too: variants that render the same pseudo-view (SD, SPD and
+                # DSP share their syntheses) parse and describe it once per process, and
+                # once per run where the disk entry is there before the next one asks.
+                self._remember(key, arrays)
             value = unpack(arrays)
+        elif view.synthetic:
+            self._remember(key, pack(value))
         return value
 
     def regions(self, parser: Parser, view: View) -> Regions:
         return self._cached(parser, view, parser.parse, _pack_regions, _unpack_regions)
 
     def local_features(self, descriptor: LocalDescriptor, view: View) -> LocalFeatures:
-        return self._cached(
-            descriptor,
-            view,
-            descriptor.extract,
-            lambda f: {"positions": f.positions, "descriptors": f.descriptors},
-            lambda a: LocalFeatures(positions=a["positions"], descriptors=a["descriptors"]),
-        )
+        return self._cached(descriptor, view, descriptor.extract, _pack_local, _unpack_local)
+
+
+def compute_many(stage: Parser | LocalDescriptor, views: Sequence[View]) -> list[dict[str, np.ndarray]]:
+    """What the cache stores for each of ``views``, computed in one batch of ``stage``
+    (a parser's regions, a local descriptor's features)."""
+    if isinstance(stage, Parser):
+        return [_pack_regions(r) for r in stage.parse_many(views)]
+    return [_pack_local(f) for f in stage.extract_many(views)]
+
+
+def _pack_local(features: LocalFeatures) -> dict[str, np.ndarray]:
+    return {"positions": features.positions, "descriptors": features.descriptors}
+
+
+def _unpack_local(arrays: dict[str, np.ndarray]) -> LocalFeatures:
+    return LocalFeatures(positions=arrays["positions"], descriptors=arrays["descriptors"])
 
 
 def _pack_regions(regions: Regions) -> dict[str, np.ndarray]:

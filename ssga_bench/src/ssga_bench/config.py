@@ -35,6 +35,7 @@ from pydantic import ConfigDict, Field, ValidationError
 from ssga_core.config import REF_TYPES, ResolvedStage, ResolvedVariant, Resolver, Strict, VariantsConfig, pydantic_problems, read_toml, stage_schemas
 from ssga_core.errors import ConfigError
 from ssga_core.plugins import Registry
+from ssga_bench.execution import ExecutionConfig
 from ssga_bench.protocol import ProtocolConfig
 
 WorkspaceRef = REF_TYPES["workspace"]
@@ -143,6 +144,9 @@ class ExperimentConfig(VariantsConfig):
     training: TrainingConfig = TrainingConfig()
     fuser: FuserRef | None = Field(default=None, description="The late-fusion rule [default: defaults.toml's].")  # type: ignore[valid-type]
     ensemble: EnsembleConfig = EnsembleConfig()
+    execution: ExecutionConfig = Field(
+        default=ExecutionConfig(), description="Where the independent work runs (serial, local processes, Ray); results do not depend on it."
+    )
     output: Path = Field(default=Path("runs/experiment"), description="Folder for caches, checkpoints and reports (relative: to the current directory).")
 
 

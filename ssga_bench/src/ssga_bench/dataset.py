@@ -40,17 +40,19 @@ from ssga_core.data import View
 from ssga_core.errors import InputError, SsgaError
 from ssga_core.geometry import Camera, Pose
 from ssga_bench.io import (
+    atomic_write_bytes,
     depth_from_png16,
     depth_to_png16,
     ids_from_png16,
     ids_to_png16,
     read_json,
     read_jsonl,
+    png_bytes,
     read_png,
     write_json,
     write_jsonl,
-    write_png,
 )
+from ssga_bench.execution import Executor
 from ssga_bench.protocol import Grid, Plan, Protocol, ProtocolConfig, Sample
 from ssga_bench.workspace import AnyWorkspace, FloorPlan, Workspace
 
@@ -95,6 +97,8 @@ def build_workspace(
     out: Path | None = None,
     overwrite: bool = False,
     progress: Callable[[str, int, int], None] | None = None,
+    executor: Executor | None = None,
+    batch: int = 16,
 ) -> Dataset:
     """Open a workspace source and build its benchmark dataset (see :func:`build_dataset`).
 
@@ -102,13 +106,19 @@ def build_workspace(
         source: the resolved workspace source (from a config, or from command-line options).
         out: the dataset folder; default ``runs/workspaces/<workspace>-<settings hash>``,
             so experiments that differ only in their stages share the rendered workspace.
+        executor: renders the views in chunks of ``batch`` on its workers, each of
+            which opens the workspace once; default: in this process.
     """
-    workspace = source.create().open()
+    from ssga_bench.tasks import opened_workspace
+
+    workspace = opened_workspace(source)  # the serial executor's task finds it open
     record = {"name": source.name, **source.config.model_dump(mode="json")}
     if out is None:
         digest = hashlib.blake2b(json.dumps([record, protocol.model_dump(mode="json")], sort_keys=True).encode(), digest_size=4)
         out = Path("runs") / "workspaces" / f"{workspace.name}-{digest.hexdigest()}"
-    return build_dataset(workspace, out, source=record, protocol=protocol, overwrite=overwrite, progress=progress)
+    return build_dataset(
+        workspace, out, source=record, protocol=protocol, overwrite=overwrite, progress=progress, render=(executor, source, batch) if executor else None
+    )
 
 
 def build_dataset(
@@ -119,6 +129,7 @@ def build_dataset(
     protocol: ProtocolConfig,
     overwrite: bool = False,
     progress: Callable[[str, int, int], None] | None = None,
+    render: tuple[Executor, ResolvedStage, int] | None = None,
 ) -> Dataset:
     """Plan and render a benchmark workspace into ``out`` (resuming a build left unfinished).
 
@@ -132,6 +143,9 @@ def build_dataset(
         protocol: the protocol's config.
         overwrite: replace what ssga wrote in ``out`` if it was built differently.
         progress: called with ``(phase, done, total)``; phases ``"plan"`` and ``"render"``.
+        render: ``(executor, source, batch)``: render on the executor's workers, each
+            opening ``source`` (the workspace's source) itself, ``batch`` views per task;
+            default: here, with ``workspace``.
     """
     out = Path(out)
     if out.exists() and not out.is_dir():
@@ -162,13 +176,28 @@ def build_dataset(
         write_json(out / "plan.json", {"grid": asdict(plan.grid), "cells": list(plan.cells), "samples": [sample_record(s) for s in plan.samples]})
 
     # A captured workspace cannot show its synthesis targets: they have no image.
-    to_write = [s for s in plan.samples if not (captured and s.split == "target")]
-    for done, sample in enumerate(to_write, 1):
-        if not (out / "rgb" / f"{sample.id}.png").exists():
+    wanted = [s for s in plan.samples if not (captured and s.split == "target")]
+    to_write = [s for s in wanted if not (out / "rgb" / f"{s.id}.png").exists()]
+    phase = "render" if not captured else "copy"
+    done = len(wanted) - len(to_write)
+    if render is None:
+        for sample in to_write:
             view = workspace.load(sample.source) if captured else workspace.render(sample.pose)
-            _write_view(view, out, sample.id)
-        if progress:
-            progress("render" if not captured else "copy", done, len(to_write))
+            write_view(out, sample.id, encode_view(view))
+            done += 1
+            if progress:
+                progress(phase, done, len(wanted))
+    else:
+        from ssga_bench.tasks import RenderJob, chunks, render_views
+
+        executor, opener, batch = render
+        jobs = [RenderJob(opener, tuple((s.id, s.pose, s.source) for s in chunk), captured) for chunk in chunks(to_write, batch)]
+        for rendered in executor.map(render_views, jobs, describe=RenderJob.what):
+            for sample_id, files in rendered:
+                write_view(out, sample_id, files)
+            done += len(rendered)
+            if progress:
+                progress(phase, done, len(wanted))
     write_jsonl(out / "manifest.jsonl", (_manifest_row(out, s) for s in plan.samples))
     return Dataset.open(out)
 
@@ -200,15 +229,23 @@ def remove_dataset(out: Path) -> None:
         raise InputError(f"{exc.filename or out}: cannot delete the old dataset: {exc.strerror}") from None
 
 
-def _write_view(view: View, out: Path, sample_id: str) -> None:
-    # RGB last: a view counts as written once its RGB file exists, and each file appears whole.
+def encode_view(view: View) -> dict[str, bytes]:
+    """A view's files as the dataset stores them: PNG bytes by channel (those the view carries)."""
+    files = {"rgb": png_bytes(view.rgb)}
     if view.depth is not None:
-        write_png(out / "depth" / f"{sample_id}.png", depth_to_png16(view.depth))
+        files["depth"] = png_bytes(depth_to_png16(view.depth))
     for name in ("semantic", "instance"):
         ids = getattr(view, name)
         if ids is not None:
-            write_png(out / name / f"{sample_id}.png", ids_to_png16(ids, name))
-    write_png(out / "rgb" / f"{sample_id}.png", view.rgb)
+            files[name] = png_bytes(ids_to_png16(ids, name))
+    return files
+
+
+def write_view(out: Path, sample_id: str, files: dict[str, bytes]) -> None:
+    """Write a view's encoded files (:func:`encode_view`). RGB last: a view counts as written
+    once its RGB file exists, and each file appears whole."""
+    for channel in sorted(files, key=lambda c: c == "rgb"):
+        atomic_write_bytes(out / channel / f"{sample_id}.png", files[channel])
 
 
 def _manifest_row(out: Path, sample: Sample) -> dict[str, Any]:
@@ -275,6 +312,15 @@ class Dataset:
 
     def split(self, split: str) -> list[Sample]:
         return self.plan.split(split)  # type: ignore[arg-type]
+
+    def sample(self, sample_id: str) -> Sample:
+        """The sample of the plan with this id."""
+        if not hasattr(self, "_by_id"):
+            self._by_id = {s.id: s for s in self.plan.samples}
+        try:
+            return self._by_id[sample_id]
+        except KeyError:
+            raise InputError(f"{self.root}: no view {sample_id!r} in plan.json") from None
 
     def has_image(self, sample: Sample) -> bool:
         """Whether the dataset holds the sample's image (a captured workspace's synthesis targets have none)."""

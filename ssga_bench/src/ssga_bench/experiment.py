@@ -41,25 +41,37 @@ from ssga_bench.cache import FeatureCache
 from ssga_bench.config import Experiment, TrainingConfig
 from ssga_bench.dataset import Dataset, build_workspace
 from ssga_bench.evaluation import Report, truth_ranks
+from ssga_bench.execution import Executor, memo, open_executor
 from ssga_bench.gcn import load_gcn, save_gcn, train_gcn
 from ssga_bench.io import atomic_write_bytes, load_npy, npy_bytes, read_json, warn, writable_folder, write_json
 from ssga_bench.oracle import TrueRender
 from ssga_bench.protocol import Protocol, Sample
 from ssga_bench.queries import draw_queries, save_predictions
 from ssga_bench.workspace import Workspace
-from ssga_core.config import ResolvedVariant
+from ssga_core.config import ResolvedStage, ResolvedVariant
 from ssga_core.data import SceneGraph, View
 from ssga_core.errors import MissingWeightsError, SsgaError
 from ssga_core.geometry import Pose
 from ssga_core.pipeline import BoundVariant, CellTraining, Progress, PseudoView, build_graph, training_graphs
-from ssga_core.stages import Fuser, Synthesizer
+from ssga_core.stages import Fuser, LocalDescriptor, Synthesizer
 
 
 @dataclass
 class Timings:
-    """Seconds spent per phase (parse, describe, synthesize, train, evaluate...)."""
+    """Where the time goes.
+
+    Attributes:
+        seconds: per stage and phase of the work (load views, parse, describe,
+            synthesize, train, evaluate...), summed over every worker that did it: what
+            each costs, whatever the executor.
+        wall: per phase of the run as the driver waits for it (workspace, real views,
+            variants, report): with several workers, less than the work it holds.
+        views: how many views each per-view stage handled (for its rate, views per second).
+    """
 
     seconds: dict[str, float] = field(default_factory=lambda: defaultdict(float))
+    wall: dict[str, float] = field(default_factory=lambda: defaultdict(float))
+    views: dict[str, int] = field(default_factory=lambda: defaultdict(int))
 
     @contextmanager
     def phase(self, name: str) -> Iterator[None]:
@@ -68,6 +80,28 @@ class Timings:
             yield
         finally:
             self.seconds[name] += time.perf_counter() - start
+
+    @contextmanager
+    def wall_phase(self, name: str) -> Iterator[None]:
+        start = time.perf_counter()
+        try:
+            yield
+        finally:
+            self.wall[name] += time.perf_counter() - start
+
+    def add(self, other: Timings | Mapping[str, float]) -> None:
+        """Add another's figures (a worker's)."""
+        if isinstance(other, Timings):
+            for phase, seconds in other.wall.items():
+                self.wall[phase] += seconds
+            for stage, count in other.views.items():
+                self.views[stage] += count
+            other = other.seconds
+        for phase, seconds in other.items():
+            self.seconds[phase] += seconds
+
+    def to_json(self) -> dict[str, dict[str, float]]:
+        return {"wall": dict(self.wall), "work": dict(self.seconds), "views": dict(self.views)}
 
     def wrap(self, obj: object, method: str, phase: str) -> None:
         """Time every call of ``obj.method`` under ``phase`` (an instance attribute shadows the method)."""
@@ -235,6 +269,9 @@ class VariantResult:
 
 _OUTPUTS = {"test": "scores.npy", "nearest": "nn_scores.npy", "val": "val_scores.npy"}
 
+QUERY_CHUNK = 1024
+"""Query graphs built and scored at a time (the GCN's prediction batch)."""
+
 
 def run_variant(
     rv: ResolvedVariant,
@@ -273,24 +310,30 @@ def run_variant(
         model, report = train_gcn(graphs, np.array(labels), dataset.num_classes, training, groups=groups)
     save_gcn(model, folder / "gcn.pt")
 
-    def query_graphs(split: str) -> list[SceneGraph]:
-        samples = dataset.split(split)
-        out = []
-        for n, s in enumerate(samples, 1):
-            out.append(build_graph(bound, views(s), memo=cache))
-            if progress:
-                progress(f"{split} graphs", n, len(samples))
-        return out
+    model = load_gcn(folder / "gcn.pt")
 
-    tests, vals = query_graphs("test"), query_graphs("val")
-    with timings.phase("evaluate"):
-        model = load_gcn(folder / "gcn.pt")
-        result = VariantResult(
-            test=model.predict(tests),
-            nearest=nearest_neighbour_scores(graphs, np.array(labels), tests, dataset.num_classes),
-            val=model.predict(vals) if vals else np.zeros((0, dataset.num_classes), np.float32),
-            training={"key": key, "label": bound.label, "graphs": len(graphs), **asdict(report)},
-        )
+    def scored(split: str, nearest: bool = False) -> tuple[np.ndarray, np.ndarray | None]:
+        # Query graphs stream through in chunks (the GCN's own prediction batch, so the
+        # scores are those of one call over all of them): memory is bounded by the
+        # chunk, not by the number of test views.
+        samples = dataset.split(split)
+        probs, near = [np.zeros((0, dataset.num_classes), np.float32)], [np.zeros((0, dataset.num_classes), np.float32)]
+        for start in range(0, len(samples), QUERY_CHUNK):
+            chunk = [build_graph(bound, views(s), memo=cache) for s in samples[start : start + QUERY_CHUNK]]
+            with timings.phase("evaluate"):
+                probs.append(model.predict(chunk))
+                if nearest:
+                    near.append(nearest_neighbour_scores(graphs, np.array(labels), chunk, dataset.num_classes))
+            if progress:
+                progress(f"{split} graphs", start + len(chunk), len(samples))
+        return np.concatenate(probs), np.concatenate(near) if nearest else None
+
+    test, near = scored("test", nearest=True)
+    val, _ = scored("val")
+    assert near is not None
+    result = VariantResult(
+        test=test, nearest=near, val=val, training={"key": key, "label": bound.label, "graphs": len(graphs), **asdict(report)}
+    )
     for name, file in _OUTPUTS.items():
         atomic_write_bytes(folder / file, npy_bytes(getattr(result, name)))
     write_json(folder / "training.json", result.training)
@@ -329,6 +372,102 @@ def _finished(folder: Path, key: str, shapes: dict[str, tuple[int, int]]) -> Var
     return VariantResult(training=meta, **arrays)
 
 
+@dataclass(frozen=True)
+class VariantJob:
+    """One variant to train and score, as a task (:func:`variant_task`) ships it to a worker.
+
+    Attributes:
+        oracle: the workspace source, to train on its true renders at the same poses
+            (the oracle row) instead of the variant's syntheses.
+    """
+
+    variant: ResolvedVariant
+    dataset: str
+    training: TrainingConfig
+    plan: TrainingPlan
+    folder: str
+    cache: str
+    oracle: ResolvedStage | None = None
+
+    def what(self) -> str:
+        return f"variant {self.variant.label}" + (" on true renders (oracle)" if self.oracle is not None else "")
+
+
+@dataclass(frozen=True)
+class VariantOutcome:
+    """What :func:`variant_task` sends back: the result, or why the variant could not run, and its timings."""
+
+    result: VariantResult | None
+    not_run: str
+    timings: Timings
+
+
+def variant_task(job: VariantJob) -> VariantOutcome:
+    """Train and score one variant (resuming: :func:`run_variant`); a missing checkpoint is an outcome, not a failure."""
+    from ssga_bench.tasks import opened_dataset, opened_workspace
+
+    timings = Timings()
+    dataset = opened_dataset(job.dataset)
+    # One cache per process: the variants a worker runs share what they computed of the
+    # same synthetic views (SD, SPD and DSP render the same pseudo-views).
+    cache = memo(("feature cache", job.cache), lambda: FeatureCache(job.cache))
+    synthesizer = TrueRender(opened_workspace(job.oracle)) if job.oracle is not None else None
+    try:
+        result = run_variant(
+            job.variant, dataset, job.training, job.plan, Path(job.folder), cache, Views(dataset, timings), timings, synthesizer=synthesizer
+        )
+    except MissingWeightsError as exc:
+        return VariantOutcome(None, f"no weights: {exc}", timings)
+    return VariantOutcome(result, "", timings)
+
+
+def cached_stages(variants: Sequence[ResolvedVariant]) -> list[ResolvedStage]:
+    """The stages whose output on real views the feature cache holds: the parsers of the
+    variants whose queries are parsed, and the local descriptors (each once)."""
+    stages: dict[tuple[str, str], ResolvedStage] = {}
+    for rv in variants:
+        parser = rv.stages.get("parser")
+        if parser is not None and "P" in rv.variant.query_order:
+            stages.setdefault((parser.cls.__qualname__, parser.config.model_dump_json()), parser)
+        descriptor = rv.stages["descriptor"]
+        if issubclass(descriptor.cls, LocalDescriptor):
+            stages.setdefault((descriptor.cls.__qualname__, descriptor.config.model_dump_json()), descriptor)
+    return list(stages.values())
+
+
+def describe_real_views(
+    variants: Sequence[ResolvedVariant],
+    dataset: Dataset,
+    cache: FeatureCache,
+    executor: Executor,
+    batch: int,
+    timings: Timings,
+    progress: Progress | None = None,
+) -> None:
+    """Parse and describe every real view (training, test, validation) once, for every
+    variant, on the executor's workers in chunks of ``batch`` views; the cache keeps the
+    results, and what it already holds is not computed again."""
+    from ssga_bench.tasks import DescribeJob, chunks, describe_views
+
+    stages = tuple(cached_stages(variants))
+    if not stages:
+        return
+    ids = [s.id for split in ("train", "test", "val") for s in dataset.split(split)]
+    # Absolute paths: a Ray worker does not run in this folder.
+    root = str(cache.root.resolve()) if cache.root is not None else None
+    jobs = [DescribeJob(str(dataset.root.resolve()), chunk, stages, root) for chunk in chunks(ids, batch)]
+    done = 0
+    for described in executor.map(describe_views, jobs, describe=DescribeJob.what):
+        for key, arrays in described.entries:
+            cache.put(key, arrays)
+        timings.add(described.seconds)
+        for phase, count in described.counts.items():
+            timings.views[phase] += count
+        done += described.views
+        if progress:
+            progress("real views (parse, describe)", done, len(ids))
+
+
 def choose_members(val_scores: Mapping[str, np.ndarray], truth: np.ndarray, fuser: Fuser) -> list[str]:
     """Variants to fuse, chosen on the validation views: forward selection by fused MRR.
 
@@ -362,34 +501,70 @@ def run_experiment(
     progress: Progress | None = None,
     variant_progress: Callable[[str], None] | None = None,
     cache_root: str | Path | None = None,
+    executor: Executor | None = None,
 ) -> tuple[Report, Timings]:
     """Train, score, fuse and evaluate every variant of ``experiment`` on ``dataset``.
 
+    Real views are parsed and described first, once for every variant, in batches on the
+    executor's workers; then every variant (and oracle row) trains and scores as one
+    task. Results are the same whatever the executor and the number of workers.
+
     Args:
-        progress: called with ``(phase, done, total)`` within a variant.
-        variant_progress: called with each variant's label as it starts.
+        progress: called with ``(phase, done, total)`` as each phase advances.
+        variant_progress: called with each variant's label as it finishes.
         cache_root: folder of the feature cache (default ``out/cache``), shareable between runs.
+        executor: where the work runs; default: the one the config's ``[execution]`` names,
+            opened and closed here.
     """
+    if executor is None:
+        with open_executor(experiment.config.execution) as own:
+            return run_experiment(
+                experiment, dataset, out, progress=progress, variant_progress=variant_progress, cache_root=cache_root, executor=own
+            )
     out = writable_folder(out)
     config = experiment.config
     timings = Timings()
     cache = FeatureCache(cache_root if cache_root is not None else out / "cache")
     views = Views(dataset, timings)
-    with timings.phase("training plan"):
+    with timings.phase("training plan"), timings.wall_phase("training plan"):
         plan = training_plan(dataset, config.training, views)
-    results: dict[str, VariantResult] = {}
-    not_run: dict[str, str] = {}
+    with timings.wall_phase("real views (parse, describe)"):
+        describe_real_views(experiment.variants, dataset, cache, executor, config.execution.batch, timings, progress)
+
     folders = folder_names(rv.label for rv in experiment.variants)
-    for rv in experiment.variants:
-        if variant_progress:
-            variant_progress(rv.label)
-        folder = out / "variants" / folders[rv.label]
-        try:
-            results[rv.label] = run_variant(rv, dataset, config.training, plan, folder, cache, views, timings, progress)
-        except MissingWeightsError as exc:
-            # A row whose checkpoint is not there is reported as such; the others still run.
-            not_run[rv.label] = f"no weights: {exc}"
-            warn(f"{rv.label}: not run: {exc}")
+    # Absolute paths: a Ray worker does not run in this folder.
+    root, cache_folder, out_folder = str(dataset.root.resolve()), str(cache.root.resolve()), out.resolve()  # type: ignore[union-attr]
+    jobs = [
+        VariantJob(rv, root, config.training, plan, str(out_folder / "variants" / folders[rv.label]), cache_folder)
+        for rv in experiment.variants
+    ]
+    oracles = [rv for rv in experiment.variants if str(rv.variant) in config.ensemble.oracle and rv.variant.synthesizes]
+    if oracles and _renderable(experiment):
+        jobs += [
+            VariantJob(rv, root, config.training, plan, str(out_folder / "oracle" / folders[rv.label]), cache_folder, experiment.workspace)
+            for rv in oracles
+        ]
+    # Longest first, so that no worker is left with a long variant at the end: those that
+    # synthesize (and the oracles, which render) before those that do not.
+    jobs.sort(key=lambda job: not (job.oracle is not None or job.variant.variant.synthesizes))
+    results: dict[str, VariantResult] = {}
+    oracle_results: dict[str, VariantResult] = {}
+    not_run: dict[str, str] = {}
+    with timings.wall_phase("variants (training graphs, train, score)"):
+        outcomes = executor.map(variant_task, jobs, describe=VariantJob.what, progress=(lambda d, n: progress("variants", d, n)) if progress else None)
+        for job, outcome in zip(jobs, outcomes):
+            timings.add(outcome.timings.seconds)
+            label = job.variant.label
+            if outcome.result is None:
+                # A row whose checkpoint is not there is reported as such; the others still run.
+                if job.oracle is None:
+                    not_run[label] = outcome.not_run
+                    warn(f"{label}: not run: {outcome.not_run.removeprefix('no weights: ')}")
+                continue
+            (oracle_results if job.oracle is not None else results)[label] = outcome.result
+            if variant_progress:
+                variant_progress(job.what())
+    not_run = {rv.label: not_run[rv.label] for rv in experiment.variants if rv.label in not_run}  # in the config's order
     if not results:
         raise SsgaError(f"no variant could run: {'; '.join(not_run.values())}")
 
@@ -422,14 +597,9 @@ def run_experiment(
     references[f"nearest neighbour ({reference_variant})"] = results[reference_variant].nearest
     series = {selected_label: f"Ensemble ({fuser.tag()}) chosen on validation", f"nearest neighbour ({reference_variant})": "nearest neighbour (best single)"}
 
-    oracles = [rv for rv in experiment.variants if str(rv.variant) in config.ensemble.oracle and rv.variant.synthesizes and rv.label in results]
-    workspace = _renderable(experiment) if oracles else None
-    for rv in oracles if workspace is not None else []:
-        if variant_progress:
-            variant_progress(f"oracle: {rv.label} on true renders")
-        folder = out / "oracle" / folders[rv.label]
-        oracle = run_variant(rv, dataset, config.training, plan, folder, cache, views, timings, progress, synthesizer=TrueRender(workspace))
-        references[f"oracle: {rv.label} on true renders"] = oracle.test
+    for label, oracle in oracle_results.items():
+        if label in results:
+            references[f"oracle: {label} on true renders"] = oracle.test
 
     flags = {label: "training stopped at the epoch cap" for label in labels if results[label].training.get("stopped_at_cap")}
     landmark = {s.cell: s.pose.yaw for s in dataset.split("train")}
@@ -450,7 +620,7 @@ def run_experiment(
             not_run=not_run,
             series={label: name for label, name in series.items() if label in references},
         )
-    with timings.phase("report"):
+    with timings.phase("report"), timings.wall_phase("report"):
         atomic_write_bytes(out / "report.md", report.markdown().encode())
         atomic_write_bytes(out / "results.csv", report.csv().encode())
         atomic_write_bytes(out / "results.png", report.plot())
@@ -461,14 +631,15 @@ def run_experiment(
         real_of_cell = {s.cell: s for s in dataset.split("train")}
         class_views = {s.place: s if dataset.has_image(s) else real_of_cell[s.cell] for s in dataset.split("train") + dataset.split("target")}
         draw_queries(out / "queries", dataset, tests, ensemble[1], truth, class_views, n=config.ensemble.queries_to_draw)
-    write_json(out / "timings.json", dict(timings.seconds))
+    write_json(out / "timings.json", timings.to_json())
     return report, timings
 
 
-def _renderable(experiment: Experiment) -> Any:
-    """The experiment's workspace, opened, if it renders any pose (an oracle needs it); else None."""
-    workspace = experiment.workspace.create().open()
-    return workspace if isinstance(workspace, Workspace) else None
+def _renderable(experiment: Experiment) -> bool:
+    """Whether the experiment's workspace renders any pose (an oracle needs it)."""
+    from ssga_bench.tasks import opened_workspace
+
+    return isinstance(opened_workspace(experiment.workspace), Workspace)
 
 
 def run(
@@ -477,6 +648,7 @@ def run(
     output: Path | None = None,
     progress: Progress | None = None,
     variant_progress: Callable[[str], None] | None = None,
+    executor: Executor | None = None,
 ) -> tuple[Report, Timings]:
     """Build (or reuse) the experiment's workspace, then train, score, fuse and report every variant.
 
@@ -484,12 +656,19 @@ def run(
         output: the experiment folder; default the config's ``output``.
         progress, variant_progress: as for :func:`run_experiment`; the workspace
             build reports its phases (``plan``, ``render``) through ``progress`` too.
+        executor: where the work runs (a bench shares one over its seeds); default: the
+            one the config's ``[execution]`` names, opened and closed here.
     """
+    if executor is None:
+        with open_executor(experiment.config.execution) as own:
+            return run(experiment=experiment, output=output, progress=progress, variant_progress=variant_progress, executor=own)
     output = writable_folder(output or experiment.config.output)
     timings = Timings()
-    with timings.phase("workspace (plan + render)"):
-        dataset = build_workspace(experiment.workspace, experiment.config.protocol, progress=progress)
-    report, ran = run_experiment(experiment, dataset, output, progress=progress, variant_progress=variant_progress)
-    for phase, seconds in ran.seconds.items():
-        timings.seconds[phase] += seconds
+    with timings.phase("workspace (plan + render)"), timings.wall_phase("workspace (plan + render)"):
+        dataset = build_workspace(
+            experiment.workspace, experiment.config.protocol, progress=progress, executor=executor, batch=experiment.config.execution.batch
+        )
+    report, ran = run_experiment(experiment, dataset, output, progress=progress, variant_progress=variant_progress, executor=executor)
+    timings.add(ran)
+    write_json(output / "timings.json", timings.to_json())
     return report, timings

@@ -141,14 +141,19 @@ def read_jsonl(path: str | Path) -> Iterator[Any]:
                 raise InputError(f"{path}:{n}: not a valid JSON line ({exc})") from None
 
 
-def write_png(path: str | Path, image: np.ndarray) -> None:
-    """Write uint8 RGB / grey or uint16 grey as PNG (RGB order in, as ssga holds images)."""
+def png_bytes(image: np.ndarray, what: str | Path = "image") -> bytes:
+    """uint8 RGB / grey or uint16 grey encoded as PNG (RGB order in, as ssga holds images)."""
     if image.ndim == 3:
         image = cv2.cvtColor(image, cv2.COLOR_RGB2BGR)
     ok, buf = cv2.imencode(".png", image)
     if not ok:
-        raise InputError(f"{path}: could not encode a {image.shape} {image.dtype} image as PNG")
-    atomic_write_bytes(path, buf.tobytes())
+        raise InputError(f"{what}: could not encode a {image.shape} {image.dtype} image as PNG")
+    return buf.tobytes()
+
+
+def write_png(path: str | Path, image: np.ndarray) -> None:
+    """Write uint8 RGB / grey or uint16 grey as PNG, atomically."""
+    atomic_write_bytes(path, png_bytes(image, path))
 
 
 def read_png(path: str | Path, *, color: bool) -> np.ndarray:

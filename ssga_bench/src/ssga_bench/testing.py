@@ -82,3 +82,33 @@ def interrupt_training(monkeypatch: Any, run_class: type, train: Callable[[], An
     finally:
         monkeypatch.setattr(run_class, "train_step", real_step)
     return load_checkpoint(out / "state.pt", "training state")
+
+
+# Tasks for the executors' own tests: module-level, so a spawned worker or a Ray worker
+# imports them by name, as it does the real tasks.
+
+
+def task_square(x: int) -> int:
+    """``x * x``: what every executor must return in job order."""
+    return x * x
+
+
+def task_fails(x: int) -> int:
+    """A user error (a bad input) on job 3, a bug (an exception that is no user error) on job 5."""
+    from ssga_core.errors import InputError
+
+    if x == 3:
+        raise InputError(f"input {x}: not what this task takes")
+    if x == 5:
+        raise ZeroDivisionError("division by zero in the task")
+    return x
+
+
+def task_thread_counts(_: object) -> tuple[int, int, int]:
+    """torch, OpenCV and BLAS threads where the task runs (a worker's are all 1)."""
+    import cv2
+    import torch
+    from threadpoolctl import threadpool_info
+
+    blas = max((pool["num_threads"] for pool in threadpool_info()), default=1)
+    return torch.get_num_threads(), cv2.getNumThreads(), blas

@@ -88,7 +88,23 @@ class Parser(Stage):
 
     def parse(self, view: View) -> Regions:
         self._require(view)
-        regions = self._parse(view)
+        return self._checked(view, self._parse(view))
+
+    def parse_many(self, views: Sequence[View]) -> list[Regions]:
+        """The regions of each of ``views``, as :meth:`parse` gives them, in one batch.
+
+        The runner hands a parser its views in batches (``[execution] batch``); a learned
+        parser overrides :meth:`_parse_many` to run its network once per batch on its
+        device. Its result for a view must not depend on the batch it came in.
+        """
+        for view in views:
+            self._require(view)
+        regions = self._parse_many(views)
+        if len(regions) != len(views):
+            raise InputError(f"parser {self.name!r} returned {len(regions)} results for {len(views)} views")
+        return [self._checked(view, r) for view, r in zip(views, regions)]
+
+    def _checked(self, view: View, regions: Regions) -> Regions:
         if regions.labels.shape != view.camera.shape:
             raise InputError(
                 f"parser {self.name!r} returned labels of shape {regions.labels.shape} for a {view.camera.shape} image"
@@ -97,6 +113,10 @@ class Parser(Stage):
 
     @abstractmethod
     def _parse(self, view: View) -> Regions: ...
+
+    def _parse_many(self, views: Sequence[View]) -> list[Regions]:
+        """Default: one view at a time."""
+        return [self._parse(view) for view in views]
 
 
 class Descriptor(Stage):
@@ -135,6 +155,24 @@ class LocalDescriptor(Descriptor):
     def extract(self, view: View) -> LocalFeatures:
         self._require(view)
         return self._extract(view)
+
+    def extract_many(self, views: Sequence[View]) -> list[LocalFeatures]:
+        """The local features of each of ``views``, as :meth:`extract` gives them, in one batch.
+
+        The runner hands a descriptor its views in batches (``[execution] batch``); a
+        learned descriptor overrides :meth:`_extract_many` to run its network once per
+        batch on its device. Its result for a view must not depend on the batch it came in.
+        """
+        for view in views:
+            self._require(view)
+        features = self._extract_many(views)
+        if len(features) != len(views):
+            raise InputError(f"descriptor {self.name!r} returned {len(features)} results for {len(views)} views")
+        return list(features)
+
+    def _extract_many(self, views: Sequence[View]) -> list[LocalFeatures]:
+        """Default: one view at a time."""
+        return [self._extract(view) for view in views]
 
     def pool(self, features: LocalFeatures, members: Sequence[np.ndarray]) -> np.ndarray:
         """Node features ``(N, dim)`` from the local features of each node.

@@ -9,11 +9,14 @@ from __future__ import annotations
 import tomllib
 from collections.abc import Iterator
 from contextlib import contextmanager
-from typing import Any
+from typing import Annotated, Any
+
+import typer
 
 from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
+from ssga_bench.execution import EXECUTORS, ExecutionConfig
 from ssga_core.errors import InputError
 
 
@@ -31,11 +34,8 @@ class Bars:
         self._progress.update(self._tasks[phase], completed=done, total=total)
 
     def variant(self, label: str) -> None:
-        """A new variant starts: clear the last one's bars and say which."""
-        for task in self._tasks.values():
-            self._progress.remove_task(task)
-        self._tasks.clear()
-        self._console.print(f"variant {label}")
+        """A variant finished (on whichever worker): say which."""
+        self._console.print(f"done: {label}")
 
 
 @contextmanager
@@ -44,6 +44,21 @@ def progress_bars(*, transient: bool = True) -> Iterator[Bars]:
     columns = (TextColumn("{task.description:<32}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(), TimeRemainingColumn())
     with Progress(*columns, console=console, transient=transient) as progress:
         yield Bars(progress, console)
+
+
+ExecutorOption = Annotated[
+    str | None,
+    typer.Option("--executor", metavar="serial|processes|ray", help="Where the work runs [default: the config's [execution], else processes on every core]."),
+]
+WorkersOption = Annotated[int | None, typer.Option("--workers", min=0, metavar="N", help="Workers (0: every core, or every CPU of the Ray cluster).")]
+AddressOption = Annotated[str | None, typer.Option("--address", metavar="HOST:PORT", help="--executor ray: the Ray cluster to join ('auto' or the head's address).")]
+
+
+def execution_options(config: ExecutionConfig | None, executor: str | None, workers: int | None, address: str | None) -> ExecutionConfig:
+    """A config's ``[execution]`` (or the default) with the command line's options over it."""
+    if executor is not None and executor not in EXECUTORS:
+        raise InputError(f"--executor {executor!r}: expected one of {', '.join(EXECUTORS)}")
+    return (config or ExecutionConfig()).updated(executor=executor, workers=workers, address=address)
 
 
 def parse_option(text: str) -> tuple[str, Any]:

@@ -1,0 +1,145 @@
+"""The execution layer: every executor maps a task the same way, and a run's results do not
+depend on the executor or the number of workers, to the bit."""
+
+from __future__ import annotations
+
+import hashlib
+from pathlib import Path
+
+import pytest
+
+from ssga_bench.execution import ExecutionConfig, ProcessExecutor, SerialExecutor, TaskCrashed, open_executor
+from ssga_bench.testing import task_fails, task_square, task_thread_counts
+from ssga_core.errors import InputError, SsgaError
+
+
+@pytest.fixture(scope="module")
+def local_ray():
+    """A small local Ray of this module's own, shut down after (never `ray stop`: it ends every Ray on the machine)."""
+    ray = pytest.importorskip("ray")
+    if ray.is_initialized():
+        pytest.skip("a Ray is already running in this process")
+    ray.init(num_cpus=2, object_store_memory=100 * 1024**2, include_dashboard=False, logging_level="ERROR")
+    yield ray
+    ray.shutdown()
+
+
+def executors(request_param, local_ray=None):
+    if request_param == "serial":
+        return SerialExecutor()
+    if request_param.startswith("processes"):
+        return ProcessExecutor(int(request_param.split("-")[1]))
+    return open_executor(ExecutionConfig(executor="ray", workers=2))
+
+
+@pytest.mark.parametrize("kind", ["serial", "processes-2"])
+def test_results_come_back_in_job_order_with_progress(kind):
+    seen = []
+    with executors(kind) as executor:
+        out = list(executor.map(task_square, range(11), progress=lambda done, total: seen.append((done, total))))
+    assert out == [x * x for x in range(11)]
+    assert [d for d, _ in seen] == list(range(1, 12)) and {t for _, t in seen} == {11}
+
+
+@pytest.mark.parametrize("kind", ["serial", "processes-2"])
+def test_a_failed_task_names_its_job(kind):
+    with executors(kind) as executor:
+        with pytest.raises(InputError, match=r"^job 3: input 3: not what this task takes$"):
+            list(executor.map(task_fails, [1, 2, 3, 4], describe=lambda x: f"job {x}"))
+        # A bug is no user error: the serial executor raises it as it was (a debugger stops
+        # there), a worker's comes back with its traceback.
+        expected = ZeroDivisionError if kind == "serial" else TaskCrashed
+        with pytest.raises(expected) as info:
+            list(executor.map(task_fails, [4, 5, 6], describe=lambda x: f"job {x}"))
+        text = str(info.value) + "".join(getattr(info.value, "__notes__", []))
+        assert "job 5" in text and "division by zero in the task" in text
+        if kind != "serial":
+            assert "Traceback" in text and "task_fails" in text
+        # The executor still works after a failure.
+        assert list(executor.map(task_square, [7])) == [49]
+
+
+def test_workers_run_one_thread_per_library():
+    with ProcessExecutor(2) as executor:
+        assert set(executor.map(task_thread_counts, range(4))) == {(1, 1, 1)}
+
+
+def test_the_serial_executor_runs_single_threaded_and_restores_the_process():
+    import cv2
+    import torch
+
+    before = (torch.get_num_threads(), cv2.getNumThreads())
+    with SerialExecutor() as executor:
+        assert list(executor.map(task_thread_counts, [0])) == [(1, 1, 1)]
+    assert (torch.get_num_threads(), cv2.getNumThreads()) == before
+
+
+def test_execution_config_and_command_line_options(monkeypatch):
+    assert ExecutionConfig(address="auto").executor_name() == "ray"
+    with pytest.raises(ValueError, match="address is for executor = 'ray'"):
+        ExecutionConfig(executor="processes", address="auto")
+    with pytest.raises(ValueError):
+        ExecutionConfig(executor="threads")
+    base = ExecutionConfig(executor="ray", address="10.0.0.1:6379", workers=8)
+    assert base.updated(executor="serial") == ExecutionConfig(executor="serial", workers=8)  # the address stays with Ray
+    assert base.updated(workers=None) is base
+    with pytest.raises(InputError, match="--executor/--workers/--address"):
+        ExecutionConfig().updated(workers=-1)
+    monkeypatch.setenv("SSGA_EXECUTOR", "processes")
+    assert ExecutionConfig().executor_name() == "processes"
+    monkeypatch.setenv("SSGA_EXECUTOR", "gpu")
+    with pytest.raises(SsgaError, match="SSGA_EXECUTOR='gpu'"):
+        ExecutionConfig().executor_name()
+
+
+def test_a_ray_address_where_no_cluster_answers_is_one_line(monkeypatch):
+    ray = pytest.importorskip("ray")
+    if ray.is_initialized():
+        pytest.skip("a Ray is already running in this process")
+    with pytest.raises(InputError, match="address '127.0.0.1:1': no Ray cluster answers there"):
+        open_executor(ExecutionConfig(executor="ray", address="127.0.0.1:1"))
+
+
+# -- a whole run, bit for bit -------------------------------------------------------------
+
+
+TINY = {
+    "variants": ["PDS", "SD", "D"],
+    "workspace": {"name": "procedural", "seed": 3, "rooms": 3},
+    "protocol": {"cells": 2, "test_per_class": 2, "val_per_class": 1, "seed": 3},
+    "stages": {"parser": {"name": "slico"}, "descriptor": {"name": "dense-sift"}, "synthesizer": {"name": "depth-warp"}},
+    "fuser": {"name": "rrf"},
+    "training": {"epochs": 15, "hidden": 32, "synthetic_per_class": 2},
+    "ensemble": {"oracle": ["SD"]},
+}
+
+
+def run_tiny(folder: Path, execution: dict, monkeypatch, batch: int = 5) -> dict[str, str]:
+    """The tiny experiment run under ``execution``; a digest of every file it wrote, by path."""
+    from ssga_bench.config import validate_experiment
+    from ssga_bench.experiment import run
+    from ssga_core.plugins import default_registry
+
+    folder.mkdir()
+    monkeypatch.chdir(folder)  # the workspace is built under ./runs/workspaces, each run its own
+    experiment = validate_experiment({**TINY, "execution": {**execution, "batch": batch}}, default_registry())
+    run(experiment=experiment, output=folder / "out")
+    digests = {}
+    for path in sorted(folder.rglob("*")):
+        if path.is_file() and path.name not in ("timings.json", "results.png") and "cache" not in path.parts:
+            digests[str(path.relative_to(folder))] = hashlib.sha256(path.read_bytes()).hexdigest()
+    return digests
+
+
+def test_a_run_is_the_same_to_the_bit_whatever_the_executor_and_workers(tmp_path, monkeypatch, local_ray):
+    serial = run_tiny(tmp_path / "serial", {"executor": "serial"}, monkeypatch)
+    assert any(p.endswith("scores.npy") for p in serial) and any(p.startswith("runs/workspaces/") and p.endswith(".png") for p in serial)
+    for name, execution in {
+        "processes-1": {"executor": "processes", "workers": 1},
+        "processes-2": {"executor": "processes", "workers": 2},
+        "ray": {"executor": "ray"},
+    }.items():
+        other = run_tiny(tmp_path / name, execution, monkeypatch)
+        assert other.keys() == serial.keys(), name
+        differ = [path for path in serial if other[path] != serial[path]]
+        assert not differ, f"{name}: {differ[:5]}"
