@@ -471,18 +471,18 @@ def _single_threaded_here() -> Iterator[None]:
     import cv2
     from threadpoolctl import threadpool_limits
 
-    before_cv2 = cv2.getNumThreads()
-    torch = sys.modules.get("torch")
-    before_torch = torch.get_num_threads() if torch is not None else None
+    # torch loads now, not inside the block: loaded there, it would read the block's
+    # OMP_NUM_THREADS and stay at one thread for the rest of the process.
+    import torch
+
+    before_cv2, before_torch = cv2.getNumThreads(), torch.get_num_threads()
     # threadpoolctl restores OpenMP (torch's pool) to what it found: enter it before
     # touching torch, and leave it before restoring torch.
     try:
         with _single_threaded_children(), threadpool_limits(1):
             cv2.setNumThreads(1)
-            if torch is not None:
-                torch.set_num_threads(1)
+            torch.set_num_threads(1)
             yield
     finally:
         cv2.setNumThreads(before_cv2)
-        if torch is not None and before_torch is not None:
-            torch.set_num_threads(before_torch)
+        torch.set_num_threads(before_torch)

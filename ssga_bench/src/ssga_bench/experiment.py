@@ -103,25 +103,29 @@ class Timings:
     def to_json(self) -> dict[str, dict[str, float]]:
         return {"wall": dict(self.wall), "work": dict(self.seconds), "views": dict(self.views)}
 
-    def wrap(self, obj: object, method: str, phase: str) -> None:
-        """Time every call of ``obj.method`` under ``phase`` (an instance attribute shadows the method)."""
+    def wrap(self, obj: object, method: str, phase: str, per_view: bool = False) -> None:
+        """Time every call of ``obj.method`` under ``phase`` (an instance attribute shadows the
+        method); ``per_view``: each call handles one view, counted for the phase's rate."""
         inner = getattr(obj, method)
 
         def timed(*args: Any, **kwargs: Any) -> Any:
             with self.phase(phase):
-                return inner(*args, **kwargs)
+                out = inner(*args, **kwargs)
+            if per_view:
+                self.views[phase] += 1
+            return out
 
         setattr(obj, method, timed)
 
 
 def instrument(bound: BoundVariant, timings: Timings) -> None:
     if bound.parser is not None:
-        timings.wrap(bound.parser, "parse", "parse")
+        timings.wrap(bound.parser, "parse", "parse", per_view=True)
     for method in ("extract", "pool", "describe", "fit"):
         if hasattr(bound.descriptor, method):
-            timings.wrap(bound.descriptor, method, "describe" if method != "fit" else "fit descriptor")
+            timings.wrap(bound.descriptor, method, "describe" if method != "fit" else "fit descriptor", per_view=method in ("extract", "describe"))
     if bound.synthesizer is not None:
-        timings.wrap(bound.synthesizer, "synthesize", "synthesize")
+        timings.wrap(bound.synthesizer, "synthesize", "synthesize", per_view=True)
 
 
 def jittered(pose: Pose, rng: np.random.Generator, metres: float, degrees: float) -> Pose:
@@ -553,7 +557,7 @@ def run_experiment(
     with timings.wall_phase("variants (training graphs, train, score)"):
         outcomes = executor.map(variant_task, jobs, describe=VariantJob.what, progress=(lambda d, n: progress("variants", d, n)) if progress else None)
         for job, outcome in zip(jobs, outcomes):
-            timings.add(outcome.timings.seconds)
+            timings.add(outcome.timings)
             label = job.variant.label
             if outcome.result is None:
                 # A row whose checkpoint is not there is reported as such; the others still run.

@@ -20,12 +20,17 @@ from __future__ import annotations
 import io
 import os
 from collections.abc import Callable, Sequence
+from contextlib import ExitStack
+from dataclasses import dataclass
 from pathlib import Path
 
 import cv2
 import numpy as np
 
+from ssga_bench.execution import Executor, SerialExecutor
 from ssga_bench.io import atomic_write_bytes, read_png
+from ssga_bench.tasks import chunks
+from ssga_core.config import ResolvedStage
 from ssga_core.data import View
 from ssga_core.errors import InputError
 from ssga_core.geometry import Camera, Pose
@@ -59,29 +64,60 @@ def load_image(path: Path) -> tuple[View, tuple[int, int] | None]:
     return View(rgb=np.ascontiguousarray(rgb), pose=Pose(0.0, 0.0, 0.0), camera=Camera(SIZE, SIZE)), resized
 
 
-def features(descriptor: Descriptor, view: View) -> tuple[np.ndarray, np.ndarray]:
-    """``(keypoints (N, 2), descriptors (D, N))`` of one view."""
+def features_many(descriptor: Descriptor, views: Sequence[View]) -> list[tuple[np.ndarray, np.ndarray]]:
+    """``(keypoints (N, 2), descriptors (D, N))`` of each view; a local descriptor takes them as one batch."""
     if isinstance(descriptor, LocalDescriptor):
-        local = descriptor.extract(view)
-        return local.positions.astype(np.float32), np.ascontiguousarray(local.descriptors.T, dtype=np.float32)
+        return [
+            (local.positions.astype(np.float32), np.ascontiguousarray(local.descriptors.T, dtype=np.float32))
+            for local in descriptor.extract_many(views)
+        ]
     if isinstance(descriptor, RegionDescriptor):
-        whole = descriptor.describe(view, None)[0]
         centre = np.array([[(SIZE - 1) / 2.0, (SIZE - 1) / 2.0]], dtype=np.float32)
-        return centre, whole.astype(np.float32).reshape(-1, 1)
+        return [(centre, descriptor.describe(view, None)[0].astype(np.float32).reshape(-1, 1)) for view in views]
     raise InputError(f"descriptor {descriptor.name!r} is neither a local nor a region descriptor; it cannot be extracted")
+
+
+@dataclass(frozen=True)
+class ExtractJob:
+    """A chunk of images for :func:`extract_chunk` (a task: it runs on any executor's worker)."""
+
+    descriptor: ResolvedStage
+    paths: tuple[str, ...]
+    """As the user gave them (errors name them so), relative to ``folder``."""
+    folder: str = "."
+
+    def what(self) -> str:
+        return f"images {self.paths[0]} ... {self.paths[-1]}" if len(self.paths) > 1 else f"image {self.paths[0]}"
+
+
+def extract_chunk(job: ExtractJob) -> list[tuple[np.ndarray, np.ndarray, tuple[int, int] | None]]:
+    """Each image's keypoints, descriptors and original size if it was resized."""
+    from ssga_bench.tasks import in_folder, opened_stage
+
+    with in_folder(job.folder):
+        loaded = [load_image(Path(p)) for p in job.paths]
+    described = features_many(opened_stage(job.descriptor), [view for view, _ in loaded])
+    return [(keypoints, descriptors, resized) for (keypoints, descriptors), (_, resized) in zip(described, loaded)]
 
 
 def extract_features(
     images: Sequence[str | Path],
-    descriptor: Descriptor,
+    descriptor: ResolvedStage,
     out: str | Path,
     *,
     progress: Callable[[str, int, int], None] | None = None,
+    executor: Executor | None = None,
+    batch: int = 16,
 ) -> dict[str, tuple[int, int]]:
     """Describe every image and write ``out`` (HDF5, hloc's layout); returns the resized images' original sizes.
 
     Every image is read before anything is written, so a broken one stops the run with
     its name and leaves no file behind.
+
+    Args:
+        descriptor: the resolved descriptor; each worker builds it once.
+        executor: describes the images in chunks of ``batch`` on its workers (default:
+            in this process).
     """
     import h5py  # the only user of HDF5: imported here so `ssga` starts without it
 
@@ -89,17 +125,18 @@ def extract_features(
     if not paths:
         raise InputError("ssga extract: no image given")
     names = image_names(paths)
+    jobs = [ExtractJob(descriptor, tuple(map(str, chunk)), os.getcwd()) for chunk in chunks(paths, batch)]
     buffer = io.BytesIO()
     resized_from: dict[str, tuple[int, int]] = {}
-    with h5py.File(buffer, "w") as h5:
+    with h5py.File(buffer, "w") as h5, ExitStack() as stack:
+        executor = executor or stack.enter_context(SerialExecutor())
         h5.attrs["descriptor"] = descriptor.name
         h5.attrs["config"] = descriptor.config.model_dump_json()
-        caveat = type(descriptor).caveat(descriptor.config)
+        caveat = descriptor.cls.caveat(descriptor.config)
         if caveat:
             h5.attrs["caveat"] = caveat
-        for n, (path, name) in enumerate(zip(paths, names), 1):
-            view, resized = load_image(path)
-            keypoints, descriptors = features(descriptor, view)
+        described = (item for chunk in executor.map(extract_chunk, jobs, describe=ExtractJob.what) for item in chunk)
+        for n, (name, (keypoints, descriptors, resized)) in enumerate(zip(names, described), 1):
             group = h5.create_group(name)
             group.create_dataset("keypoints", data=keypoints)
             group.create_dataset("descriptors", data=descriptors)

@@ -28,7 +28,9 @@ written atomically.
 
 from __future__ import annotations
 
+import os
 from collections.abc import Callable, Sequence
+from contextlib import ExitStack
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -36,7 +38,10 @@ from typing import Any
 import numpy as np
 
 from ssga_bench.extract import image_names
-from ssga_bench.io import depth_from_png16, ids_from_png16, ids_to_png16, read_png, writable_folder, write_json, write_png
+from ssga_bench.execution import Executor, SerialExecutor
+from ssga_bench.io import atomic_write_bytes, depth_from_png16, ids_from_png16, ids_to_png16, png_bytes, read_png, writable_folder, write_json
+from ssga_bench.tasks import chunks
+from ssga_core.config import ResolvedStage
 from ssga_bench.scene_graph_figure import draw_scene_graph
 from ssga_core.data import VIEW_DATA, Regions, SceneGraph, View
 from ssga_core.errors import InputError
@@ -147,7 +152,7 @@ def output_names(paths: Sequence[Path]) -> list[str]:
     return stems
 
 
-def check_carries(parser: Parser, view: View, image: Path, *, companions: bool) -> None:
+def check_carries(parser: type[Parser], view: View, image: Path, *, companions: bool) -> None:
     """Before any parsing: the image carries what the parser consumes (RGB, depth, ids), or a line saying how to give it."""
     missing = (parser.consumes & VIEW_DATA) - view.available
     if missing:
@@ -160,28 +165,98 @@ def check_carries(parser: Parser, view: View, image: Path, *, companions: bool) 
         raise InputError(f"{image}: parser {parser.name!r} needs {names}, which this image does not carry; {how}")
 
 
-def _parse(parser: Parser, view: View, image: Path) -> Regions:
+@dataclass(frozen=True)
+class ParseJob:
+    """A chunk of images for :func:`parse_chunk` (a task: it runs on any executor's worker)."""
+
+    parser: ResolvedStage
+    images: tuple[str, ...]
+    """As the user gave them, relative to ``folder``."""
+    names: tuple[str, ...]
+    folder: str
+    companions: bool
+    preset: str | None
+
+    def what(self) -> str:
+        return f"images {self.images[0]} ... {self.images[-1]}" if len(self.images) > 1 else f"image {self.images[0]}"
+
+
+@dataclass(frozen=True)
+class ParsedFiles:
+    """One image's outputs, made by a worker, written by the driver."""
+
+    labels: bytes
+    record: dict[str, Any]
+    picture: bytes
+    regions: int
+    edges: int
+    channels: tuple[str, ...]
+
+
+def parse_chunk(job: ParseJob) -> list[ParsedFiles]:
+    """Parse a chunk of images as one batch, and make each one's label PNG, JSON record and picture."""
+    from ssga_bench.tasks import in_folder, opened_stage
+
+    parser = opened_stage(job.parser)
+    with in_folder(job.folder):
+        loaded = [load_view(Path(image), companions=job.companions) for image in job.images]
     try:
-        return parser.parse(view)
+        parsed = parser.parse_many([view for view, _ in loaded])
     except InputError as exc:
-        raise InputError(f"{image}: {exc}") from None
+        raise InputError(f"{job.what()}: {exc}") from None
+    record = parser_record(parser, job.preset)
+    title = parser.name + (f" ({job.preset})" if job.preset else "")
+    out = []
+    for image, name, (view, channels), regions in zip(job.images, job.names, loaded, parsed):
+        graph = scene_graph(view, regions)
+        json_record = {
+            "image": image,
+            "size": [view.camera.width, view.camera.height],
+            "channels": list(channels),
+            "synthetic": view.synthetic,
+            "parser": record,
+            "picture": Path(f"{name}{PICTURE}").name,
+            "labels": Path(f"{name}{LABELS}").name,
+            "labels_encoding": "16-bit PNG: node number (region index + 1), 0 for no region",
+            "whole_image": {"node": SceneGraph.WHOLE_IMAGE, "box": graph.boxes[SceneGraph.WHOLE_IMAGE].tolist(), "weight": float(graph.weights[SceneGraph.WHOLE_IMAGE])},
+            "regions": regions_record(regions, graph),
+            "edges": graph.edges.tolist(),
+            "edge_rule": EDGE_RULE,
+        }
+        between = int(np.all(graph.edges != SceneGraph.WHOLE_IMAGE, axis=1).sum())
+        out.append(
+            ParsedFiles(
+                labels=png_bytes(ids_to_png16(regions.labels, f"{image}: region labels")),
+                record=json_record,
+                picture=png_bytes(draw_scene_graph(view.rgb, regions, graph, title=title)),
+                regions=len(regions),
+                edges=between,
+                channels=channels,
+            )
+        )
+    return out
 
 
 def parse_images(
     images: Sequence[str | Path],
-    parser: Parser,
+    parser: ResolvedStage,
     out: str | Path,
     *,
     preset: str | None = None,
     companions: bool = True,
     progress: Callable[[str, int, int], None] | None = None,
+    executor: Executor | None = None,
+    batch: int = 16,
 ) -> list[ParsedImage]:
     """Parse every image, and write its picture, label PNG and JSON into ``out`` (see the module docstring).
 
     Args:
+        parser: the resolved parser; each worker builds it once.
         preset: the parser's preset, if it was made from one (recorded in the JSON).
         companions: read the channel files ssga wrote beside an image (depth, ids).
         progress: called with ``("parse", done, total)``.
+        executor: parses the images in chunks of ``batch`` on its workers (default: in
+            this process).
     """
     paths = [Path(p) for p in images]
     if not paths:
@@ -196,38 +271,22 @@ def parse_images(
             if (out / f"{name}{suffix}").resolve() in inputs:
                 raise InputError(f"{out / f'{name}{suffix}'}: is an input; the output of {path} would replace it; choose another --out")
     for path in paths:
-        check_carries(parser, load_view(path, companions=companions)[0], path, companions=companions)
+        check_carries(parser.cls, load_view(path, companions=companions)[0], path, companions=companions)
     writable_folder(out)
-    record = parser_record(parser, preset)
-    title = parser.name + (f" ({preset})" if preset else "")
+    jobs = [
+        ParseJob(parser, tuple(str(paths[i]) for i in chunk), tuple(names[i] for i in chunk), os.getcwd(), companions, preset)
+        for chunk in chunks(range(len(paths)), batch)
+    ]
     parsed: list[ParsedImage] = []
-    for n, (path, name) in enumerate(zip(paths, names), 1):
-        view, channels = load_view(path, companions=companions)
-        regions = _parse(parser, view, path)
-        graph = scene_graph(view, regions)
-        picture = out / f"{name}{PICTURE}"
-        write_png(out / f"{name}{LABELS}", ids_to_png16(regions.labels, f"{path}: region labels"))
-        write_json(
-            out / f"{name}{REGIONS}",
-            {
-                "image": str(path),
-                "size": [view.camera.width, view.camera.height],
-                "channels": list(channels),
-                "synthetic": view.synthetic,
-                "parser": record,
-                "picture": Path(f"{name}{PICTURE}").name,
-                "labels": Path(f"{name}{LABELS}").name,
-                "labels_encoding": "16-bit PNG: node number (region index + 1), 0 for no region",
-                "whole_image": {"node": SceneGraph.WHOLE_IMAGE, "box": graph.boxes[SceneGraph.WHOLE_IMAGE].tolist(), "weight": float(graph.weights[SceneGraph.WHOLE_IMAGE])},
-                "regions": regions_record(regions, graph),
-                "edges": graph.edges.tolist(),
-                "edge_rule": EDGE_RULE,
-            },
-        )
-        write_png(picture, draw_scene_graph(view.rgb, regions, graph, title=title))
-        between = int(np.all(graph.edges != SceneGraph.WHOLE_IMAGE, axis=1).sum())
-        parsed.append(ParsedImage(path, picture, len(regions), between, channels))
-        if progress:
-            progress("parse", n, len(paths))
+    with ExitStack() as stack:
+        executor = executor or stack.enter_context(SerialExecutor())
+        made = (files for chunk in executor.map(parse_chunk, jobs, describe=ParseJob.what) for files in chunk)
+        for n, (path, name, files) in enumerate(zip(paths, names, made), 1):
+            picture = out / f"{name}{PICTURE}"
+            atomic_write_bytes(out / f"{name}{LABELS}", files.labels)
+            write_json(out / f"{name}{REGIONS}", files.record)
+            atomic_write_bytes(picture, files.picture)
+            parsed.append(ParsedImage(path, picture, files.regions, files.edges, files.channels))
+            if progress:
+                progress("parse", n, len(paths))
     return parsed
-

@@ -9,8 +9,10 @@ is the same whichever worker computes it.
 
 from __future__ import annotations
 
+import os
 import time
 from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, TypeVar
@@ -21,6 +23,7 @@ from ssga_bench.cache import FeatureCache, compute_many, stage_key, view_key
 from ssga_bench.execution import memo
 from ssga_core.config import ResolvedStage
 from ssga_core.data import View
+from ssga_core.errors import MissingWeightsError
 from ssga_core.geometry import Pose
 from ssga_core.stages import LocalDescriptor, Parser
 
@@ -31,6 +34,21 @@ def chunks(items: Sequence[T], size: int) -> Iterator[tuple[T, ...]]:
     """``items`` in consecutive chunks of ``size`` (the last shorter): the same cut whatever the executor."""
     for start in range(0, len(items), size):
         yield tuple(items[start : start + size])
+
+
+@contextmanager
+def in_folder(folder: str) -> Iterator[None]:
+    """Run in ``folder`` (where the user's command ran): a worker opens the user's relative
+    paths, and its errors name them as the user wrote them (a Ray worker runs elsewhere)."""
+    before = os.getcwd()
+    if folder == before:
+        yield
+        return
+    os.chdir(folder)
+    try:
+        yield
+    finally:
+        os.chdir(before)
 
 
 def opened_stage(stage: ResolvedStage) -> Any:
@@ -98,14 +116,17 @@ def describe_views(job: DescribeJob) -> Described:
     counts = {"load views": len(views)}
     entries = []
     for ref in job.stages:
-        stage = opened_stage(ref)
-        assert isinstance(stage, (Parser, LocalDescriptor)), f"{ref.name}: the cache holds parsers' and local descriptors' output"
-        skey = stage_key(stage)
-        todo = [i for i, key in enumerate(keys) if cache is None or not cache.has((skey, key))]
-        if not todo:
-            continue
-        start = time.perf_counter()
-        computed = compute_many(stage, [views[i] for i in todo])
+        try:
+            stage = opened_stage(ref)
+            assert isinstance(stage, (Parser, LocalDescriptor)), f"{ref.name}: the cache holds parsers' and local descriptors' output"
+            skey = stage_key(stage)
+            todo = [i for i, key in enumerate(keys) if cache is None or not cache.has((skey, key))]
+            if not todo:
+                continue
+            start = time.perf_counter()
+            computed = compute_many(stage, [views[i] for i in todo])
+        except MissingWeightsError:
+            continue  # its variants report themselves "not run", with the field to set, when they run it
         phase = "parse" if isinstance(stage, Parser) else "describe"
         seconds[phase] = seconds.get(phase, 0.0) + time.perf_counter() - start
         counts[phase] = counts.get(phase, 0) + len(todo)

@@ -9,7 +9,7 @@ import typer
 
 from ssga_core.cli import command, current_registry
 from ssga_core.config import resolve_stage
-from ssga_bench.cli import parse_option, progress_bars
+from ssga_bench.cli import AddressOption, ExecutorOption, WorkersOption, execution_options, parse_option, progress_bars
 
 
 def extract_cli(
@@ -17,15 +17,20 @@ def extract_cli(
     descriptor: Annotated[str, typer.Option(metavar="NAME", help="Descriptor plugin (`ssga plugins` lists them).")],
     out: Annotated[Path, typer.Option(metavar="FILE.h5", help="HDF5 file to write (hloc's layout), whole or not at all.")],
     option: Annotated[list[str] | None, typer.Option("--option", "-o", metavar="KEY=VALUE", help="A parameter of the descriptor (or preset=NAME); repeatable.")] = None,
+    executor: ExecutorOption = None,
+    workers: WorkersOption = None,
+    address: AddressOption = None,
 ) -> None:
     """Write each image's features in hloc's layout: per image, keypoints (N x 2, x then y) and descriptors (D x N)."""
+    from ssga_bench.execution import open_executor
     from ssga_bench.extract import SIZE, extract_features
 
     ref = {"name": descriptor, **dict(parse_option(o) for o in option or [])}
-    stage = resolve_stage("descriptor", ref, current_registry(), source="command-line options").create()
-    with progress_bars() as bars:
-        resized = extract_features(images, stage, out, progress=bars)
-    caveat = type(stage).caveat(stage.config)
+    stage = resolve_stage("descriptor", ref, current_registry(), source="command-line options")
+    execution = execution_options(None, executor, workers, address)
+    with progress_bars() as bars, open_executor(execution) as runner:
+        resized = extract_features(images, stage, out, progress=bars, executor=runner, batch=execution.batch)
+    caveat = stage.cls.caveat(stage.config)
     for name, (w, h) in resized.items():
         typer.echo(f"{name}: resized from {w} x {h} to {SIZE} x {SIZE}", err=True)
     typer.echo(f"{out}: {len(images)} images, descriptor {descriptor!r}" + (f" [{caveat}]" if caveat else ""))

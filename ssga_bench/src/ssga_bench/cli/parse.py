@@ -10,7 +10,7 @@ import typer
 from ssga_core.cli import command, current_registry
 from ssga_core.config import resolve_stage
 from ssga_core.errors import InputError
-from ssga_bench.cli import parse_option, progress_bars
+from ssga_bench.cli import AddressOption, ExecutorOption, WorkersOption, execution_options, parse_option, progress_bars
 
 
 def parse_cli(
@@ -20,17 +20,24 @@ def parse_cli(
     option: Annotated[list[str] | None, typer.Option("--option", "-o", metavar="KEY=VALUE", help="A parameter of the parser (device=cpu for a learned one); repeatable.")] = None,
     preset: Annotated[str | None, typer.Option(metavar="P", help="One of the parser's presets to start from; options override it.")] = None,
     rgb_only: Annotated[bool, typer.Option("--rgb-only", help="Ignore the depth and id files ssga wrote beside an image (a workspace's or a synthesis's).")] = False,
+    executor: ExecutorOption = None,
+    workers: WorkersOption = None,
+    address: AddressOption = None,
 ) -> None:
     """Draw each image's scene graph (regions, boxes, edges, class names, the whole-image node) and write its regions."""
+    from ssga_bench.execution import open_executor
     from ssga_bench.parse import parse_images
 
     options = dict(parse_option(o) for o in option or [])
     if preset is not None and options.setdefault("preset", preset) != preset:
         raise InputError(f"--preset {preset!r} and -o preset={options['preset']!r}: expected one preset")
-    stage = resolve_stage("parser", {"name": parser, **options}, current_registry(), source="command-line options").create()
-    with progress_bars() as bars:
-        parsed = parse_images(images, stage, out, preset=options.get("preset"), companions=not rgb_only, progress=bars)
-    caveat = type(stage).caveat(stage.config)
+    stage = resolve_stage("parser", {"name": parser, **options}, current_registry(), source="command-line options")
+    execution = execution_options(None, executor, workers, address)
+    with progress_bars() as bars, open_executor(execution) as runner:
+        parsed = parse_images(
+            images, stage, out, preset=options.get("preset"), companions=not rgb_only, progress=bars, executor=runner, batch=execution.batch
+        )
+    caveat = stage.cls.caveat(stage.config)
     for p in parsed:
         extra = f" (read with {', '.join(p.channels[1:])})" if len(p.channels) > 1 else ""
         typer.echo(f"{p.picture}: {p.image}: {p.regions} regions, {p.edges} edges between them{extra}" + (f" [{caveat}]" if caveat else ""))

@@ -12,7 +12,7 @@ from pydantic import ValidationError
 from ssga_core.cli import command, current_registry
 from ssga_core.config import ResolvedStage, pydantic_problems, resolve_stage
 from ssga_core.errors import ConfigError
-from ssga_bench.cli import parse_option, progress_bars
+from ssga_bench.cli import AddressOption, ExecutorOption, WorkersOption, execution_options, parse_option, progress_bars
 
 if TYPE_CHECKING:
     from ssga_bench.protocol import ProtocolConfig
@@ -46,11 +46,15 @@ def build_cli(
     ] = False,
     out: Annotated[Path | None, typer.Option(metavar="DIR", help="Dataset folder [default: runs/workspaces/<workspace>-<settings hash>].")] = None,
     overwrite: Annotated[bool, typer.Option(help="Replace a dataset built with other settings (only the files ssga wrote).")] = False,
+    executor: ExecutorOption = None,
+    workers: WorkersOption = None,
+    address: AddressOption = None,
 ) -> None:
     """Plan and render a benchmark workspace; an interrupted build resumes where it stopped. With --suggest, only say
     which cell size, viewpoint distance and test radius give the wanted cells on it."""
     from ssga_bench.config import load_experiment, packaged_config
     from ssga_bench.dataset import build_workspace
+    from ssga_bench.execution import open_executor
     from ssga_bench.protocol import ProtocolConfig
 
     registry = current_registry()
@@ -80,8 +84,9 @@ def build_cli(
     if suggest:
         typer.echo("\n".join(suggest_protocol(stage=stage, protocol=protocol)))
         return
-    with progress_bars(transient=False) as bars:
-        dataset = build_workspace(stage, protocol, out=out, overwrite=overwrite, progress=bars)
+    execution = execution_options(base.config.execution, executor, workers, address)
+    with progress_bars(transient=False) as bars, open_executor(execution) as runner:
+        dataset = build_workspace(stage, protocol, out=out, overwrite=overwrite, progress=bars, executor=runner, batch=execution.batch)
     levels = dataset.plan.level_counts()
     typer.echo(
         f"{dataset.root}: {dataset.num_classes} classes, {len(dataset.split('train'))} real training views, "
