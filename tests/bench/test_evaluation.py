@@ -181,7 +181,7 @@ def test_bench_summary_over_seeds():
             "ws", variants, truth, groups=groups, num_classes=10, ensemble=("E", good + noise), best_single=best,
             references={nn: good}, series={nn: "nearest neighbour (best single)"},
         )  # fmt: skip
-        runs[seed] = SeedRun(report, {"train": 1.0 + seed, "describe": 4.0}, 10.0)
+        runs[seed] = SeedRun(report, {"train": 1.0 + seed, "describe": 4.0}, 10.0, {"variants": 6.0}, {"describe": 80})
     md = bench_summary(runs)
     # A reference whose label names this seed's choice is one row across seeds, under its series.
     assert "| nearest neighbour (best single) |" in md and "nearest neighbour (good)" not in md
@@ -190,4 +190,8 @@ def test_bench_summary_over_seeds():
     assert "| best single (validation) |" in md  # one row, whichever variant each seed chose
     assert "| 0 | 40 | 40 | 40 | 60 | 60 | 120 |" in md
     assert "seed 1 L3" in md and "| noise | +" in md
-    assert "| train | 1.0 | 2.0 | 15.0 |" in md and "takes 15.0% of wall time: within the target" in md
+    assert "| variants | 6.0 | 6.0 | 60.0 |" in md and "| train | 1.0 | 2.0 |" in md
+    assert "takes 26.7% of the work: over the target" in md  # (1/5 + 2/6) / 2
+    # 120 test views in 10 s, against 80 views in 4 s of describing on one worker.
+    assert "| end to end [test views/s] | 12.00 | 12.00 |" in md and "| describe, one worker [views/s] | 20.0 | 20.0 |" in md
+    assert "| end to end / slowest stage [%] | 60 | 60 |" in md
