@@ -30,6 +30,7 @@ _EXPORTS = {
     "load_strict": "ssga_bench.learned",
     "checkpoint_bytes": "ssga_bench.learned",
     "resolve_device": "ssga_bench.learned",
+    "network_calls": "ssga_bench.learned",
     # training commands of learned plugins: the staged resumable loop, provenance, export, CLI
     "TrainingRun": "ssga_bench.training",
     "training_log": "ssga_bench.training",

@@ -29,6 +29,7 @@ Conventions (the same in every learned plugin):
 from __future__ import annotations
 
 import io
+from collections.abc import Hashable, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, ClassVar, Literal
 
@@ -156,6 +157,25 @@ def load_strict(module: torch.nn.Module, state: Any, who: str, path: Path | str,
     if problems:
         raise CheckpointError(f"{who}: config field 'weights': {path} does not match {what}: {'; '.join(problems)}")
     module.load_state_dict(state, strict=True)
+
+
+CPU_VIEWS_PER_CALL: int | None = 1
+"""Views per network call on the CPU (on a GPU each group of one input size is one call).
+Batching pays on a GPU, not on a CPU: with one torch thread, as the runner's workers have,
+one call of 16 views at 256 x 256 took longer than 16 calls of one (pnv's light network
+1.5-1.6x, its VGG16 1.26x, cascade-seg's light network 1.25x; the pnv README's Speed).
+Results are the same either way (each plugin's tests/test_batch.py)."""
+
+
+def network_calls(keys: Sequence[Hashable], device: torch.device) -> list[list[int]]:
+    """How a batch of views goes through a network on ``device``: the indices of ``keys`` (each
+    view's input size) grouped by key, in the order of their first index, each group one call
+    on a GPU and cut into calls of :data:`CPU_VIEWS_PER_CALL` on the CPU."""
+    groups: dict[Hashable, list[int]] = {}
+    for i, key in enumerate(keys):
+        groups.setdefault(key, []).append(i)
+    step = (CPU_VIEWS_PER_CALL if device.type == "cpu" else None) or len(keys) or 1
+    return [group[start : start + step] for group in groups.values() for start in range(0, len(group), step)]
 
 
 def checkpoint_bytes(obj: Any) -> bytes:

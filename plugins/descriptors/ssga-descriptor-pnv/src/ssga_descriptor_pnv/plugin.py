@@ -16,6 +16,7 @@ official VGG16 models, whose files the user places (``mapillary_WPCA512.pth.tar`
 from __future__ import annotations
 
 import threading
+from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal
 
@@ -31,6 +32,7 @@ from ssga_bench import (
     LearnedConfig,
     load_checkpoint,
     load_strict,
+    network_calls,
 )
 from ssga_descriptor_pnv.layout import LIGHT_WIDTHS, STRIDE, VGG16_WIDTHS, patch_grid
 
@@ -50,6 +52,7 @@ RANDOM_CLUSTERS = 16
 
 RANDOM_SEED = 0
 """Random weights are drawn from this seed: the same in every process (worker processes agree)."""
+
 
 
 class PnvConfig(BoWDescriptorConfig, LearnedConfig):
@@ -153,24 +156,53 @@ class Pnv(Learned, BoWDescriptor):
         return net
 
     def _extract(self, view: View) -> LocalFeatures:
+        return self._extract_many([view])[0]
+
+    def _extract_many(self, views: Sequence[View]) -> list[LocalFeatures]:
+        """One network call per group of views that reach it at the same size (on the CPU: per view).
+
+        With ``image_size`` set every view is resized to it, so the whole batch is one
+        call; with ``None`` views are grouped by their own size (padding them to a common
+        size would change the features near the borders).
+        """
         import torch
 
         from ssga_descriptor_pnv.model import preprocess
 
         cfg: PnvConfig = self.config  # type: ignore[assignment]
+        sides = [self._side(view) for view in views]  # every view checked before any network work
+        out: dict[int, LocalFeatures] = {}
+        for members in network_calls(sides, self.device):
+            side = sides[members[0]]
+            x = torch.cat([preprocess(views[i].rgb, cfg.image_size) for i in members]).to(self.device)
+            with torch.inference_mode():
+                local, _ = self.net(x)
+            descriptors = local.float().cpu().numpy()
+            grid = patch_grid((side[0] // STRIDE, side[1] // STRIDE), cfg.patch_size, cfg.stride)
+            for row, i in enumerate(members):
+                # A copy: each view's features outlive the batch (the cache keeps them per view), and a
+                # slice would keep the whole batch's array alive with them.
+                positions = _in_view_pixels(grid, side, views[i].camera.shape)
+                out[i] = LocalFeatures(positions=positions, descriptors=descriptors[row].copy())
+        return [out[i] for i in range(len(views))]
+
+    def _side(self, view: View) -> tuple[int, int]:
+        """The ``(height, width)`` the network sees ``view`` at; :class:`InputError` if it holds no patch."""
+        cfg: PnvConfig = self.config  # type: ignore[assignment]
         h, w = view.camera.shape
-        size = cfg.image_size
-        side_h, side_w = (size, size) if size is not None else (h, w)
-        if min(side_h, side_w) // STRIDE < cfg.patch_size:
+        side = (cfg.image_size, cfg.image_size) if cfg.image_size is not None else (h, w)
+        if min(side) // STRIDE < cfg.patch_size:
             raise InputError(f"{self.who}: a {w}x{h} view is too small for {cfg.patch_size}-cell patches (needs {STRIDE * cfg.patch_size} px a side)")
-        x = preprocess(view.rgb, size).to(self.device)
-        with torch.inference_mode():
-            local, _ = self.net(x)
-        descriptors = local[0].float().cpu().numpy()
-        positions = patch_grid((side_h // STRIDE, side_w // STRIDE), cfg.patch_size, cfg.stride)
-        if (side_h, side_w) != (h, w):  # back to the view's pixels (pixel i covers [i - 0.5, i + 0.5])
-            positions = (positions + 0.5) * np.array([w / side_w, h / side_h], dtype=np.float32) - 0.5
-        return LocalFeatures(positions=positions.astype(np.float32), descriptors=np.ascontiguousarray(descriptors))
+        return side
+
+
+
+def _in_view_pixels(positions: np.ndarray, side: tuple[int, int], shape: tuple[int, int]) -> np.ndarray:
+    """Patch centres in the network input's pixels (``side``, as ``(height, width)``) moved to the view's (``shape``)."""
+    (side_h, side_w), (h, w) = side, shape
+    if (side_h, side_w) != (h, w):  # pixel i covers [i - 0.5, i + 0.5]
+        positions = (positions + 0.5) * np.array([w / side_w, h / side_h], dtype=np.float32) - 0.5
+    return positions.astype(np.float32)
 
 
 @hookimpl

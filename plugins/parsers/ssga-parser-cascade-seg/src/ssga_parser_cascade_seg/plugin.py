@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import difflib
 import threading
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Annotated, Any, Literal, Self
 
@@ -27,7 +28,7 @@ import numpy as np
 from pydantic import Field, model_validator
 
 from ssga_core import CheckpointError, Data, InputError, MissingWeightsError, Parser, Regions, View, boxes_from_labels, hookimpl
-from ssga_bench import RANDOM_WEIGHTS, Learned, LearnedConfig, load_checkpoint, load_strict
+from ssga_bench import RANDOM_WEIGHTS, Learned, LearnedConfig, load_checkpoint, load_strict, network_calls
 from ssga_parser_cascade_seg.classes import VOCABULARIES
 
 WEIGHTS_DIR = Path(__file__).parent / "weights"
@@ -47,6 +48,7 @@ LIGHT_SCALES = (176, 216, 256, 296, 336)
 
 RANDOM_SEED = 0
 """Random weights are :func:`~.model.init_weights` with this seed: the same in every process."""
+
 
 
 class CascadeSegConfig(LearnedConfig):
@@ -227,20 +229,54 @@ class CascadeSeg(Learned, Parser):
 
     def probabilities(self, rgb: np.ndarray) -> np.ndarray:
         """``(C, H, W)`` float32 class probabilities of an ``(H, W, 3)`` uint8 image, averaged over ``image_sizes``."""
-        from ssga_parser_cascade_seg.model import predict
+        return self.probabilities_many([rgb])[0]
+
+    def probabilities_many(self, images: Sequence[np.ndarray]) -> list[np.ndarray]:
+        """:meth:`probabilities` of each of ``images``, the network run once per scale for all images scaled to one size.
+
+        Per image the arithmetic is :func:`.model.predict`'s (CSAIL's ``test.py``): at each
+        scale the logits are upsampled to the image's size and soft-maxed, and the scales'
+        probabilities are summed in order and averaged. Only images whose input at a scale
+        has the same size share a call: padding to a common size would change the logits.
+        """
+        import torch
+        import torch.nn.functional as F
+
+        from ssga_parser_cascade_seg.model import scale_sizes, to_input
 
         cfg: CascadeSegConfig = self.config  # type: ignore[assignment]
-        if rgb.ndim != 3 or rgb.shape[2] != 3 or rgb.dtype != np.uint8:
-            raise InputError(f"{self.who}: expected an (H, W, 3) uint8 RGB image, got shape {rgb.shape} of {rgb.dtype}")
-        return predict(self.net, rgb, cfg.image_sizes, cfg.max_size, cfg.padding).float().cpu().numpy()
+        for rgb in images:  # every image checked before any network work
+            if rgb.ndim != 3 or rgb.shape[2] != 3 or rgb.dtype != np.uint8:
+                raise InputError(f"{self.who}: expected an (H, W, 3) uint8 RGB image, got shape {rgb.shape} of {rgb.dtype}")
+        device = self.device
+        sizes = [scale_sizes(rgb.shape[:2], cfg.image_sizes, cfg.max_size, cfg.padding) for rgb in images]
+        sums: dict[int, torch.Tensor] = {}
+        with torch.inference_mode():
+            for scale in range(len(cfg.image_sizes)):
+                for members in network_calls([s[scale] for s in sizes], device):
+                    x = torch.cat([to_input(images[i], sizes[i][scale], device) for i in members])
+                    logits = self.net(x)
+                    for row, i in enumerate(members):
+                        h, w = images[i].shape[:2]
+                        upsampled = F.interpolate(logits[row : row + 1], (h, w), mode="bilinear", align_corners=False)
+                        probs = upsampled.softmax(dim=1)[0]
+                        sums[i] = sums[i] + probs if i in sums else probs  # scale by scale, as predict adds them
+        return [(sums[i] / len(cfg.image_sizes)).float().cpu().numpy() for i in range(len(images))]
 
     def classify(self, rgb: np.ndarray) -> np.ndarray:
         """``(H, W)`` int32 class index of every pixel (the most probable)."""
         return self.probabilities(rgb).argmax(0).astype(np.int32)
 
     def _parse(self, view: View) -> Regions:
+        return self._parse_many([view])[0]
+
+    def _parse_many(self, views: Sequence[View]) -> list[Regions]:
+        probabilities = self.probabilities_many([view.rgb for view in views])
+        return [self._regions(view, probs) for view, probs in zip(views, probabilities, strict=True)]
+
+    def _regions(self, view: View, probs: np.ndarray) -> Regions:
+        """The regions of ``view`` from its class probabilities ``(C, H, W)``."""
         cfg: CascadeSegConfig = self.config  # type: ignore[assignment]
-        probs = self.probabilities(view.rgb)
         classes = probs.argmax(0).astype(np.int32)
         confidence = probs.max(0)
         if cfg.drop_holes and view.synthetic and view.depth is not None:
@@ -248,6 +284,7 @@ class CascadeSeg(Learned, Parser):
         if self._ignored.size:
             classes[np.isin(classes, self._ignored)] = -1
         return class_regions(classes, self.class_names, cfg.min_region_px, cfg.connectivity, confidence)
+
 
 
 def class_regions(classes: np.ndarray, names: tuple[str, ...], min_px: int, connectivity: int = 8, confidence: np.ndarray | None = None) -> Regions:
