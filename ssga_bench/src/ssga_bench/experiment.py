@@ -246,6 +246,7 @@ class Views:
             return self._kept[sample.id]
         with self.timings.phase("load views"):
             view = self.dataset.view(sample)
+        self.timings.views["load views"] += 1
         if keep:
             self._kept[sample.id] = view
         return view
@@ -462,8 +463,8 @@ def describe_real_views(
     jobs = [DescribeJob(str(dataset.root.resolve()), chunk, stages, root) for chunk in chunks(ids, batch)]
     done = 0
     for described in executor.map(describe_views, jobs, describe=DescribeJob.what):
-        for key, arrays in described.entries:
-            cache.put(key, arrays)
+        for key, entry in described.entries:
+            cache.put(key, entry)
         timings.add(described.seconds)
         for phase, count in described.counts.items():
             timings.views[phase] += count

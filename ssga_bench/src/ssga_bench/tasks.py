@@ -17,9 +17,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, TypeVar
 
-import numpy as np
 
-from ssga_bench.cache import FeatureCache, compute_many, stage_key, view_key
+from ssga_bench.cache import FeatureCache, compute_many, encode_entry, stage_key, view_key
 from ssga_bench.execution import memo
 from ssga_core.config import ResolvedStage
 from ssga_core.data import View
@@ -98,7 +97,8 @@ class DescribeJob:
 class Described:
     """What :func:`describe_views` sends back: new cache entries, and seconds per stage kind."""
 
-    entries: list[tuple[tuple[str, str], dict[str, np.ndarray]]]
+    entries: list[tuple[tuple[str, str], bytes]]
+    """``(stage key, view key)`` and the entry's encoded ``.npz``."""
     seconds: dict[str, float]
     counts: dict[str, int]
     """Views computed per phase (``parse``, ``describe``), summed over its stages."""
@@ -130,7 +130,7 @@ def describe_views(job: DescribeJob) -> Described:
         phase = "parse" if isinstance(stage, Parser) else "describe"
         seconds[phase] = seconds.get(phase, 0.0) + time.perf_counter() - start
         counts[phase] = counts.get(phase, 0) + len(todo)
-        entries.extend(((skey, keys[i]), arrays) for i, arrays in zip(todo, computed))
+        entries.extend(((skey, keys[i]), encode_entry(arrays)) for i, arrays in zip(todo, computed))
     return Described(entries, seconds, counts, len(views))
 
 
