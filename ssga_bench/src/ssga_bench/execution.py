@@ -117,7 +117,7 @@ class ExecutionConfig(Strict):
         try:
             return ExecutionConfig.model_validate(data)
         except ValueError as exc:  # pydantic's ValidationError: one line naming the options
-            detail = "; ".join(e["msg"] for e in getattr(exc, "errors", lambda: [])()) or str(exc)
+            detail = "; ".join(e["msg"].removeprefix("Value error, ") for e in getattr(exc, "errors", lambda: [])()) or str(exc)
             raise InputError(f"--executor/--workers/--address: {detail}") from None
 
 
