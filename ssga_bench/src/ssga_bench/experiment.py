@@ -121,9 +121,10 @@ class Timings:
 def instrument(bound: BoundVariant, timings: Timings) -> None:
     if bound.parser is not None:
         timings.wrap(bound.parser, "parse", "parse", per_view=True)
-    for method in ("extract", "pool", "describe", "fit"):
+    phases = {"extract": "describe", "describe": "describe", "pool": "pool (node features)", "fit": "fit descriptor"}
+    for method, phase in phases.items():
         if hasattr(bound.descriptor, method):
-            timings.wrap(bound.descriptor, method, "describe" if method != "fit" else "fit descriptor", per_view=method in ("extract", "describe"))
+            timings.wrap(bound.descriptor, method, phase, per_view=method in ("extract", "describe"))
     if bound.synthesizer is not None:
         timings.wrap(bound.synthesizer, "synthesize", "synthesize", per_view=True)
 
