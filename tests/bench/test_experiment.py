@@ -97,9 +97,17 @@ def test_runs_fuses_reports_and_resumes(tmp_path, dataset, stand_in_registry, mo
     def no_training(*args, **kwargs):
         raise AssertionError("trained again")
 
+    def no_task(*args, **kwargs):
+        raise AssertionError("a task ran again")
+
     monkeypatch.setattr("ssga_bench.experiment.train_gcn", no_training)
+    # Nor is a real view looked at again, nor a finished variant handed to a worker.
+    monkeypatch.setattr("ssga_bench.tasks.describe_views", no_task)
+    monkeypatch.setattr("ssga_bench.experiment.variant_task", no_task)
     again, _ = run_experiment(exp, dataset, tmp_path)
     assert again.markdown() == report.markdown()
+    monkeypatch.undo()
+    monkeypatch.setattr("ssga_bench.experiment.train_gcn", no_training)
     with pytest.raises(AssertionError, match="trained again"):
         run_experiment(experiment(stand_in_registry, seed=1), dataset, tmp_path)
 

@@ -27,6 +27,7 @@ from typing import TypeVar
 
 import numpy as np
 
+from ssga_core.config import ResolvedStage
 from ssga_core.data import LocalFeatures, Regions, View
 from ssga_core.errors import SsgaError
 from ssga_bench.io import atomic_write_bytes, warn
@@ -48,7 +49,8 @@ def view_key(view: View) -> str:
     return h.hexdigest()
 
 
-def stage_key(stage: Stage) -> str:
+def stage_key(stage: Stage | ResolvedStage) -> str:
+    """The cache folder of a stage's entries: its kind, name and a hash of its config."""
     config = stage.config.model_dump_json()
     return f"{stage.kind}-{stage.name}-{hashlib.blake2b(config.encode(), digest_size=6).hexdigest()}"
 
@@ -70,6 +72,23 @@ class FeatureCache:
     def has(self, key: tuple[str, str]) -> bool:
         """Whether the entry ``(stage key, view key)`` is stored (in memory or on disk)."""
         return key in self._memory or (self.root is not None and (self.root / key[0] / f"{key[1]}.npz").exists())
+
+    def _marker(self, stage: ResolvedStage, dataset: str) -> Path | None:
+        if self.root is None:
+            return None
+        digest = hashlib.blake2b(dataset.encode(), digest_size=8).hexdigest()
+        return self.root / stage_key(stage) / f"complete-{digest}.json"
+
+    def complete(self, stage: ResolvedStage, dataset: str) -> bool:
+        """Whether every real view of ``dataset`` (a digest of what it holds) was stored for ``stage``:
+        a rerun then loads none of them to look."""
+        marker = self._marker(stage, dataset)
+        return marker is not None and marker.exists()
+
+    def mark_complete(self, stage: ResolvedStage, dataset: str) -> None:
+        marker = self._marker(stage, dataset)
+        if marker is not None:
+            atomic_write_bytes(marker, b"{}\n")
 
     def put(self, key: tuple[str, str], entry: bytes) -> None:
         """Store an entry computed and encoded elsewhere (by a worker: :func:`compute_many`, :func:`encode_entry`)."""

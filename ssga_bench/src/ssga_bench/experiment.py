@@ -37,7 +37,7 @@ from typing import Any
 
 import numpy as np
 
-from ssga_bench.cache import FeatureCache
+from ssga_bench.cache import FeatureCache, stage_key
 from ssga_bench.config import Experiment, TrainingConfig
 from ssga_bench.dataset import Dataset, build_workspace
 from ssga_bench.evaluation import Report, truth_ranks
@@ -297,11 +297,11 @@ def run_variant(
     Args:
         synthesizer: replaces the variant's own (the oracle's true renders).
     """
-    key = variant_key(rv, training, dataset, extra=synthesizer.name if synthesizer is not None else "")
-    shapes = {"test": len(dataset.split("test")), "nearest": len(dataset.split("test")), "val": len(dataset.split("val"))}
-    finished = _finished(folder, key, {k: (n, dataset.num_classes) for k, n in shapes.items()})
+    extra = synthesizer.name if synthesizer is not None else ""
+    finished = finished_variant(rv, dataset, training, folder, extra)
     if finished is not None:
         return finished
+    key = variant_key(rv, training, dataset, extra=extra)
 
     bound = rv.bind()
     if synthesizer is not None:
@@ -358,6 +358,13 @@ def nearest_neighbour_scores(train: Sequence[SceneGraph], labels: np.ndarray, qu
     for c in np.unique(labels):
         out[:, c] = similarity[:, labels == c].max(axis=1)
     return out
+
+
+def finished_variant(rv: ResolvedVariant, dataset: Dataset, training: TrainingConfig, folder: Path, extra: str = "") -> VariantResult | None:
+    """What a finished run of this variant left in ``folder`` (``extra``: the oracle's synthesizer), or None."""
+    key = variant_key(rv, training, dataset, extra=extra)
+    shapes = {"test": len(dataset.split("test")), "nearest": len(dataset.split("test")), "val": len(dataset.split("val"))}
+    return _finished(folder, key, {k: (n, dataset.num_classes) for k, n in shapes.items()})
 
 
 def _finished(folder: Path, key: str, shapes: dict[str, tuple[int, int]]) -> VariantResult | None:
@@ -455,7 +462,10 @@ def describe_real_views(
     results, and what it already holds is not computed again."""
     from ssga_bench.tasks import DescribeJob, chunks, describe_views
 
-    stages = tuple(cached_stages(variants))
+    # A stage that stored every view of this dataset before (a rerun) is not asked again:
+    # no view is loaded to look.
+    identity = json.dumps([dataset.header, hashlib.blake2b((dataset.root / "plan.json").read_bytes(), digest_size=8).hexdigest()], sort_keys=True)
+    stages = tuple(stage for stage in cached_stages(variants) if not cache.complete(stage, identity))
     if not stages:
         return
     ids = [s.id for split in ("train", "test", "val") for s in dataset.split(split)]
@@ -463,7 +473,9 @@ def describe_real_views(
     root = str(cache.root.resolve()) if cache.root is not None else None
     jobs = [DescribeJob(str(dataset.root.resolve()), chunk, stages, root) for chunk in chunks(ids, batch)]
     done = 0
+    incomplete: set[str] = set()
     for described in executor.map(describe_views, jobs, describe=DescribeJob.what):
+        incomplete.update(described.without_weights)
         for key, entry in described.entries:
             cache.put(key, entry)
         timings.add(described.seconds)
@@ -472,6 +484,9 @@ def describe_real_views(
         done += described.views
         if progress:
             progress("real views (parse, describe)", done, len(ids))
+    for stage in stages:
+        if stage_key(stage) not in incomplete:
+            cache.mark_complete(stage, identity)
 
 
 def choose_members(val_scores: Mapping[str, np.ndarray], truth: np.ndarray, fuser: Fuser) -> list[str]:
@@ -556,8 +571,13 @@ def run_experiment(
     results: dict[str, VariantResult] = {}
     oracle_results: dict[str, VariantResult] = {}
     not_run: dict[str, str] = {}
+    # Finished variants are read back here: a rerun starts no worker for them.
+    done = {id(job): finished_variant(job.variant, dataset, config.training, Path(job.folder), TrueRender.name if job.oracle else "") for job in jobs}
+    outcomes_of = {id(job): VariantOutcome(result, "", Timings()) for job in jobs if (result := done[id(job)]) is not None}
+    todo = [job for job in jobs if id(job) not in outcomes_of]
     with timings.wall_phase("variants (training graphs, train, score)"):
-        outcomes = executor.map(variant_task, jobs, describe=VariantJob.what, progress=(lambda d, n: progress("variants", d, n)) if progress else None)
+        ran = executor.map(variant_task, todo, describe=VariantJob.what, progress=(lambda d, n: progress("variants", d, n)) if progress else None)
+        outcomes = (outcomes_of[id(job)] if id(job) in outcomes_of else next(ran) for job in jobs)
         for job, outcome in zip(jobs, outcomes):
             timings.add(outcome.timings)
             label = job.variant.label

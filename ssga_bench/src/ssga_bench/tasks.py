@@ -103,6 +103,8 @@ class Described:
     counts: dict[str, int]
     """Views computed per phase (``parse``, ``describe``), summed over its stages."""
     views: int
+    without_weights: tuple[str, ...] = ()
+    """Stages (their cache keys) that could not run for want of their weights."""
 
 
 def describe_views(job: DescribeJob) -> Described:
@@ -115,6 +117,7 @@ def describe_views(job: DescribeJob) -> Described:
     seconds = {"load views": time.perf_counter() - start}
     counts = {"load views": len(views)}
     entries = []
+    without_weights = []
     for ref in job.stages:
         try:
             stage = opened_stage(ref)
@@ -126,12 +129,13 @@ def describe_views(job: DescribeJob) -> Described:
             start = time.perf_counter()
             computed = compute_many(stage, [views[i] for i in todo])
         except MissingWeightsError:
-            continue  # its variants report themselves "not run", with the field to set, when they run it
+            without_weights.append(stage_key(ref))  # its variants report themselves "not run", with the field to set
+            continue
         phase = "parse" if isinstance(stage, Parser) else "describe"
         seconds[phase] = seconds.get(phase, 0.0) + time.perf_counter() - start
         counts[phase] = counts.get(phase, 0) + len(todo)
         entries.extend(((skey, keys[i]), encode_entry(arrays)) for i, arrays in zip(todo, computed))
-    return Described(entries, seconds, counts, len(views))
+    return Described(entries, seconds, counts, len(views), tuple(without_weights))
 
 
 # -- render a workspace's views ---------------------------------------------------------------
