@@ -31,6 +31,8 @@ _EXPORTS = {
     "checkpoint_bytes": "ssga_bench.learned",
     "resolve_device": "ssga_bench.learned",
     "network_calls": "ssga_bench.learned",
+    # the execution layer: what a plugin that starts its own processes needs
+    "single_threaded_children": "ssga_bench.execution",
     # training commands of learned plugins: the staged resumable loop, provenance, export, CLI
     "TrainingRun": "ssga_bench.training",
     "training_log": "ssga_bench.training",

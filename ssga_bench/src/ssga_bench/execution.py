@@ -334,7 +334,7 @@ class ProcessExecutor(Executor):
             from concurrent.futures import ProcessPoolExecutor
 
             # Set while the pool lives: workers start on demand and their BLAS reads it on load.
-            self._environment = _single_threaded_children()
+            self._environment = single_threaded_children()
             self._environment.__enter__()
             self._pool = ProcessPoolExecutor(self.workers, multiprocessing.get_context("spawn"), worker_setup)
         return self._pool.submit(_outcome, task, job, True)
@@ -450,8 +450,12 @@ def open_executor(config: ExecutionConfig | None = None) -> Executor:
 
 
 @contextmanager
-def _single_threaded_children() -> Iterator[None]:
-    """Processes started inside this block load their numeric libraries single-threaded."""
+def single_threaded_children() -> Iterator[None]:
+    """Processes started inside this block load their numeric libraries single-threaded.
+
+    Set in the environment, not in a worker's initializer, because BLAS and OpenMP read it
+    when they load, which is before any initializer runs.
+    """
     saved = {k: os.environ.get(k) for k in THREAD_VARIABLES}
     os.environ.update(dict.fromkeys(THREAD_VARIABLES, "1"))
     try:
@@ -479,7 +483,7 @@ def _single_threaded_here() -> Iterator[None]:
     # threadpoolctl restores OpenMP (torch's pool) to what it found: enter it before
     # touching torch, and leave it before restoring torch.
     try:
-        with _single_threaded_children(), threadpool_limits(1):
+        with single_threaded_children(), threadpool_limits(1):
             cv2.setNumThreads(1)
             torch.set_num_threads(1)
             yield

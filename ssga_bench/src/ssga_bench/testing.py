@@ -5,11 +5,16 @@
   :mod:`ssga_core.testing.stages` to run whole experiments on stand-ins in seconds.
 * :func:`interrupt_training`: a learned plugin's training command stopped mid-run, as
   its users will stop it (and then resume it).
+* :func:`one_torch_thread`: torch at one thread while a test runs (with the other core
+  busy, two threads wait on each other: 2-3x slower, measured).
+* :func:`network_inputs` and :func:`whole_batches_on_cpu`: what a learned stage's network
+  was called with, and its batched path made to run on the CPU too (to test it there).
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -112,3 +117,43 @@ def task_thread_counts(_: object) -> tuple[int, int, int]:
 
     blas = max((pool["num_threads"] for pool in threadpool_info()), default=1)
     return torch.get_num_threads(), cv2.getNumThreads(), blas
+
+
+@contextmanager
+def network_inputs(net: Any) -> Iterator[list[tuple[int, ...]]]:
+    """The input shape of each call of the torch module ``net`` while the block runs (``(N, C, H, W)``:
+    the batch size first). Networks are shared by every stage instance with the same weights, so
+    the hook is removed after."""
+    calls: list[tuple[int, ...]] = []
+    handle = net.register_forward_hook(lambda module, args, out: calls.append(tuple(args[0].shape)))
+    try:
+        yield calls
+    finally:
+        handle.remove()
+
+
+@contextmanager
+def whole_batches_on_cpu() -> Iterator[None]:
+    """Network calls take whole batches on the CPU too, as on a GPU (``ssga_bench.network_calls``),
+    so that a test here runs a learned stage's batched path."""
+    from ssga_bench import learned
+
+    before = learned.CPU_VIEWS_PER_CALL
+    learned.CPU_VIEWS_PER_CALL = None
+    try:
+        yield
+    finally:
+        learned.CPU_VIEWS_PER_CALL = before
+
+
+@contextmanager
+def one_torch_thread() -> Iterator[None]:
+    """torch at one thread inside the block, as in the runner's workers; restored after."""
+    import torch
+
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(before)

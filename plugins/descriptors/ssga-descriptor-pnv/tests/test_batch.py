@@ -3,12 +3,12 @@ in one network call per same-size group (on a GPU; on the CPU one call per view,
 
 from __future__ import annotations
 
-from collections.abc import Iterator
-from contextlib import contextmanager
 
 import numpy as np
 import pytest
 import torch
+from ssga_bench.testing import network_inputs, whole_batches_on_cpu
+from ssga_bench.testing import one_torch_thread as torch_at_one_thread
 from ssga_core.testing import make_view
 from ssga_descriptor_pnv.plugin import Pnv, PnvConfig
 
@@ -29,28 +29,21 @@ def _views() -> list[View]:
 
 @pytest.fixture(autouse=True, scope="module")
 def one_torch_thread():
-    """With the other core busy, two torch threads wait on each other (the README's Speed)."""
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(before)
+    """With the other core busy, two torch threads wait on each other (2-3x slower): one thread, as the runner's workers."""
+    with torch_at_one_thread():
+        yield
 
 
-@contextmanager
-def network_calls(d: Pnv) -> Iterator[list[int]]:
+def network_calls(d: Pnv):
     """The batch size of each call of ``d``'s network while the block runs."""
-    calls: list[int] = []
-    handle = d.net.register_forward_hook(lambda module, args, out: calls.append(args[0].shape[0]))
-    try:
-        yield calls
-    finally:
-        handle.remove()  # the network is shared by every instance with the same weights
+    return network_inputs(d.net)
 
 
 @pytest.fixture
-def whole_batches(monkeypatch):
+def whole_batches():
     """Each same-size group in one call on the CPU too, as on a GPU: the batched network call runs here."""
-    monkeypatch.setattr("ssga_bench.learned.CPU_VIEWS_PER_CALL", None)
+    with whole_batches_on_cpu():
+        yield
 
 
 def _assert_same(many, views, d: Pnv) -> None:
@@ -67,7 +60,7 @@ def test_a_batch_is_one_call_and_gives_each_view_its_single_features(whole_batch
     views = _views()
     with network_calls(d) as calls:
         many = d.extract_many(views)
-    assert calls == [4]
+    assert [c[0] for c in calls] == [4]
     _assert_same(many, views, d)
     assert [len(f) for f in many] == [144] * 4
     assert np.abs(many[0].descriptors - many[1].descriptors).max() > 0.02, "each view its own row of the batch"
@@ -78,7 +71,7 @@ def test_views_described_at_their_own_size_are_batched_by_size(whole_batches):
     views = [_view(320, 192, 1), _view(256, 256, 2), _view(320, 192, 3), _view(160, 128, 4)]
     with network_calls(d) as calls:
         many = d.extract_many(views)
-    assert calls == [2, 1, 1]  # groups in the order of their first view
+    assert [c[0] for c in calls] == [2, 1, 1]  # groups in the order of their first view
     assert [len(f) for f in many] == [16 * 8, 12 * 12, 16 * 8, 6 * 4]
     _assert_same(many, views, d)
 
@@ -94,7 +87,7 @@ def test_on_the_cpu_each_view_is_its_own_call():
     d = Pnv(RANDOM)
     with network_calls(d) as calls:
         d.extract_many(_views()[:3])
-    assert calls == [1, 1, 1]
+    assert [c[0] for c in calls] == [1, 1, 1]
 
 
 @pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA device")
@@ -103,7 +96,7 @@ def test_on_cuda_a_batch_is_one_call_and_agrees_with_single_views_and_the_cpu():
     views = _views()
     with network_calls(d) as calls:
         many = d.extract_many(views)
-    assert calls == [4]
+    assert [c[0] for c in calls] == [4]
     cpu = Pnv(PnvConfig(device="cpu"))
     for view, got in zip(views, many, strict=True):
         # cuDNN may pick other (TF32) kernels for another batch size: rounding in the convolutions only.

@@ -9,6 +9,8 @@ from contextlib import contextmanager
 import numpy as np
 import pytest
 import torch
+from ssga_bench.testing import network_inputs, whole_batches_on_cpu
+from ssga_bench.testing import one_torch_thread as torch_at_one_thread
 from ssga_core.testing import make_view
 from ssga_parser_cascade_seg.model import predict
 from ssga_parser_cascade_seg.plugin import CascadeSeg, CascadeSegConfig
@@ -22,11 +24,9 @@ RANDOM = CascadeSegConfig(weights="random", device="cpu")
 
 @pytest.fixture(autouse=True, scope="module")
 def one_torch_thread():
-    """With the other core busy, two torch threads wait on each other."""
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(before)
+    """With the other core busy, two torch threads wait on each other (2-3x slower): one thread, as the runner's workers."""
+    with torch_at_one_thread():
+        yield
 
 
 def _view(width: int, height: int, seed: int) -> View:
@@ -42,18 +42,17 @@ def _views() -> list[View]:
 @contextmanager
 def network_calls(parser: CascadeSeg) -> Iterator[list[tuple[int, ...]]]:
     """The input shape ``(N, H, W)`` of each call of ``parser``'s network while the block runs."""
-    calls: list[tuple[int, ...]] = []
-    handle = parser.net.register_forward_hook(lambda module, args, out: calls.append((args[0].shape[0], *args[0].shape[2:])))
-    try:
-        yield calls
-    finally:
-        handle.remove()  # the network is shared by every instance with the same weights
+    with network_inputs(parser.net) as calls:
+        shapes: list[tuple[int, ...]] = []
+        yield shapes
+    shapes.extend((n, h, w) for n, _, h, w in calls)
 
 
 @pytest.fixture
-def whole_batches(monkeypatch):
+def whole_batches():
     """Each same-size group in one call on the CPU too, as on a GPU: the batched network call runs here."""
-    monkeypatch.setattr("ssga_bench.learned.CPU_VIEWS_PER_CALL", None)
+    with whole_batches_on_cpu():
+        yield
 
 
 @pytest.mark.parametrize("config", [PACKAGED, MULTISCALE, RANDOM], ids=["packaged", "multiscale", "random"])

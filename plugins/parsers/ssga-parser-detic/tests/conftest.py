@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-import torch
+from ssga_bench.testing import one_torch_thread as torch_at_one_thread
 
 CLASSES = 40
 
@@ -27,8 +27,6 @@ def vocabulary(vocabulary_dir) -> dict[str, str]:
 
 @pytest.fixture(autouse=True, scope="module")
 def one_torch_thread():
-    """With the other core busy, two torch threads wait on each other: a parse took 3x the CPU time (measured)."""
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(before)
+    """With the other core busy, two torch threads wait on each other (2-3x slower): one thread, as the runner's workers."""
+    with torch_at_one_thread():
+        yield

@@ -3,12 +3,11 @@
 from __future__ import annotations
 
 import pytest
-import torch
+from ssga_bench.testing import one_torch_thread as torch_at_one_thread
 
 
 @pytest.fixture(autouse=True, scope="module")
 def one_torch_thread():
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(before)
+    """With the other core busy, two torch threads wait on each other (2-3x slower): one thread, as the runner's workers."""
+    with torch_at_one_thread():
+        yield

@@ -15,15 +15,14 @@ depth), with no division by the ray length.
 from __future__ import annotations
 
 import multiprocessing
-import os
-from collections.abc import Iterable, Iterator, Mapping
+from collections.abc import Iterable, Mapping
 from concurrent.futures import ProcessPoolExecutor
-from contextlib import contextmanager
 
 import cv2
 import numpy as np
 import trimesh
 
+from ssga_bench import single_threaded_children
 from ssga_core import View
 from ssga_core import Camera, Pose
 from ssga_workspace_mesh.atlas import TextureAtlas
@@ -155,7 +154,7 @@ class MeshRenderer:
         context = multiprocessing.get_context("spawn")
         chunk = max(1, len(poses) // (8 * workers))
         # Workers start on the first submissions, so the environment stays set throughout.
-        with _single_threaded_children(), ProcessPoolExecutor(workers, context, _init_worker, (self,)) as pool:
+        with single_threaded_children(), ProcessPoolExecutor(workers, context, _init_worker, (self,)) as pool:
             return list(pool.map(_render_in_worker, poses, chunksize=chunk))
 
     # An Embree scene cannot be pickled: a worker gets the flat mesh and builds its own.
@@ -210,26 +209,6 @@ def _shade(normals: np.ndarray, directions: np.ndarray) -> np.ndarray:
     return AMBIENT + (1.0 - AMBIENT) * 0.5 * (1.0 + cos)
 
 
-_THREAD_VARIABLES = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "OPENCV_FOR_THREADS_NUM")
-
-
-@contextmanager
-def _single_threaded_children() -> Iterator[None]:
-    """Make processes spawned inside this block start with one thread per numeric library.
-
-    Set in the environment, not in the worker's initializer, because BLAS and OpenMP
-    read it when they load, which is before any initializer runs.
-    """
-    saved = {k: os.environ.get(k) for k in _THREAD_VARIABLES}
-    os.environ.update(dict.fromkeys(_THREAD_VARIABLES, "1"))
-    try:
-        yield
-    finally:
-        for key, value in saved.items():
-            if value is None:
-                os.environ.pop(key, None)
-            else:
-                os.environ[key] = value
 
 
 _worker_renderer: MeshRenderer | None = None
