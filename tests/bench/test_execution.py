@@ -143,3 +143,37 @@ def test_a_run_is_the_same_to_the_bit_whatever_the_executor_and_workers(tmp_path
         assert other.keys() == serial.keys(), name
         differ = [path for path in serial if other[path] != serial[path]]
         assert not differ, f"{name}: {differ[:5]}"
+
+
+def test_extract_and_parse_on_worker_processes_equal_this_process(tmp_path, monkeypatch):
+    """The user's images, described and parsed by two worker processes in chunks, from a relative
+    path in the folder the command runs in: the same files as in this process."""
+    import cv2
+    import h5py
+    import numpy as np
+    from typer.testing import CliRunner
+
+    from ssga_core.cli import app_with_plugin_commands
+
+    rng = np.random.default_rng(0)
+    (tmp_path / "imgs").mkdir()
+    names = [f"imgs/{i}.png" for i in range(5)]
+    for name in names:
+        cv2.imwrite(str(tmp_path / name), rng.integers(0, 256, (256, 256, 3), dtype=np.uint8))
+    monkeypatch.chdir(tmp_path)
+    app, runner = app_with_plugin_commands(), CliRunner()
+    outputs = {}
+    for executor in ("serial", "processes"):
+        common = ["--executor", executor, "--workers", "2"] if executor == "processes" else ["--executor", executor]
+        extract = runner.invoke(app, ["extract", *names, "--descriptor", "dense-sift", "--out", f"{executor}.h5", *common])
+        parse = runner.invoke(app, ["parse", *names, "--parser", "slico", "--out", f"{executor}-parsed", *common])
+        assert extract.exit_code == 0 and parse.exit_code == 0, extract.output + parse.output
+        with h5py.File(f"{executor}.h5") as h5:
+            outputs[executor] = {f"{g}/{k}": h5[g][k][()].tobytes() for g in h5 for k in h5[g]}
+        outputs[executor].update({p.name: p.read_bytes() for p in sorted((tmp_path / f"{executor}-parsed").iterdir())})
+    assert outputs["serial"].keys() == outputs["processes"].keys() and len(outputs["serial"]) == 5 * 3 + 5 * 3
+    assert outputs["serial"] == outputs["processes"]
+    # A broken image is one line naming it, whichever worker met it.
+    (tmp_path / "imgs" / "2.png").write_bytes(b"not a png")
+    broken = runner.invoke(app, ["extract", *names, "--descriptor", "dense-sift", "--out", "broken.h5", "--executor", "processes", "--workers", "2"])
+    assert broken.exit_code == 1 and "imgs/2.png: not a readable image" in broken.output and not (tmp_path / "broken.h5").exists()

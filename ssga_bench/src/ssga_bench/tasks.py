@@ -17,12 +17,11 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, TypeVar
 
-
 from ssga_bench.cache import FeatureCache, compute_many, encode_entry, stage_key, view_key
 from ssga_bench.execution import memo
 from ssga_core.config import ResolvedStage
 from ssga_core.data import View
-from ssga_core.errors import MissingWeightsError
+from ssga_core.errors import InputError, MissingWeightsError
 from ssga_core.geometry import Pose
 from ssga_core.stages import LocalDescriptor, Parser
 
@@ -43,7 +42,10 @@ def in_folder(folder: str) -> Iterator[None]:
     if folder == before:
         yield
         return
-    os.chdir(folder)
+    try:
+        os.chdir(folder)
+    except OSError as exc:
+        raise InputError(f"{folder}: {exc.strerror} on this worker's machine; every node needs the shared folder at the same path") from None
     try:
         yield
     finally:
