@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import hashlib
 import io
+import json
 import zipfile
 from collections import OrderedDict
 from collections.abc import Callable, Sequence
@@ -73,6 +74,23 @@ class FeatureCache:
         """Whether the entry ``(stage key, view key)`` is stored (in memory or on disk)."""
         return key in self._memory or (self.root is not None and (self.root / key[0] / f"{key[1]}.npz").exists())
 
+    def view_keys(self, dataset: str) -> dict[str, str]:
+        """The content key of every real view of ``dataset`` (a digest of what it holds) by
+        sample id, as the describing phase recorded them; empty if it did not."""
+        if self.root is None:
+            return {}
+        path = self.root / f"views-{hashlib.blake2b(dataset.encode(), digest_size=8).hexdigest()}.json"
+        try:
+            keys = json.loads(path.read_text())
+        except (OSError, ValueError):
+            return {}
+        return keys if isinstance(keys, dict) else {}
+
+    def record_view_keys(self, dataset: str, keys: dict[str, str]) -> None:
+        if self.root is not None and keys:
+            path = self.root / f"views-{hashlib.blake2b(dataset.encode(), digest_size=8).hexdigest()}.json"
+            atomic_write_bytes(path, json.dumps(keys, sort_keys=True).encode())
+
     def _marker(self, stage: ResolvedStage, dataset: str) -> Path | None:
         if self.root is None:
             return None
@@ -96,6 +114,11 @@ class FeatureCache:
             self._remember(key, decode_entry(entry))
         else:
             atomic_write_bytes(self.root / key[0] / f"{key[1]}.npz", entry)
+
+    def know(self, view: View, key: str) -> None:
+        """Take ``key`` as ``view``'s content key without hashing it: a query view loaded with only
+        the channels its stages read, whose full content (``key``) was hashed when it was described."""
+        self._last_view = (view, key)
 
     def _view_key(self, view: View) -> str:
         # A view is usually asked for by two stages in a row (its regions, then its local

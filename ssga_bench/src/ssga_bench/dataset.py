@@ -28,7 +28,7 @@ from __future__ import annotations
 import hashlib
 import json
 import re
-from collections.abc import Callable
+from collections.abc import Callable, Collection
 from dataclasses import asdict
 from pathlib import Path
 from typing import Any
@@ -326,15 +326,15 @@ class Dataset:
         """Whether the dataset holds the sample's image (a captured workspace's synthesis targets have none)."""
         return (self._rows.get(sample.id) or {}).get("rgb") is not None
 
-    def view(self, sample: Sample) -> View:
-        """Load a sample's view (RGB, depth, semantic and instance ids)."""
+    def view(self, sample: Sample, channels: Collection[str] = CHANNELS) -> View:
+        """Load a sample's view: RGB and, of depth, semantic and instance ids, those in ``channels`` it has."""
         row = self._rows.get(sample.id)
         if row is None or row.get("rgb") is None:
             raise InputError(f"{self.root}: no image of view {sample.id!r} in manifest.jsonl")
         rgb = read_png(self.root / row["rgb"], color=True)
 
         def single(name: str) -> np.ndarray | None:
-            return read_png(self.root / row[name], color=False) if row.get(name) else None
+            return read_png(self.root / row[name], color=False) if row.get(name) and name in channels else None
 
         depth, semantic, instance = single("depth"), single("semantic"), single("instance")
         depth = depth_from_png16(depth) if depth is not None else None

@@ -49,7 +49,7 @@ from ssga_bench.protocol import Protocol, Sample
 from ssga_bench.queries import draw_queries, save_predictions
 from ssga_bench.workspace import Workspace
 from ssga_core.config import ResolvedStage, ResolvedVariant
-from ssga_core.data import SceneGraph, View
+from ssga_core.data import Data, SceneGraph, View
 from ssga_core.errors import MissingWeightsError, SsgaError
 from ssga_core.geometry import Pose
 from ssga_core.pipeline import BoundVariant, CellTraining, Progress, PseudoView, build_graph, training_graphs
@@ -236,11 +236,18 @@ def variant_key(rv: ResolvedVariant, training: TrainingConfig, dataset: Dataset,
 
 
 class Views:
-    """Loads dataset views, keeping the few real training views in memory."""
+    """Loads dataset views, keeping the few real training views in memory.
 
-    def __init__(self, dataset: Dataset, timings: Timings) -> None:
+    Args:
+        keys: the content key of each view, by sample id, as the describing phase hashed
+            them (:meth:`FeatureCache.view_keys`): a query then loads only the channels its
+            stages read, and ``cache`` is told its key instead of hashing what it loaded.
+    """
+
+    def __init__(self, dataset: Dataset, timings: Timings, keys: Mapping[str, str] | None = None, cache: FeatureCache | None = None) -> None:
         self.dataset, self.timings = dataset, timings
         self._kept: dict[str, View] = {}
+        self._keys, self._cache = keys or {}, cache
 
     def __call__(self, sample: Sample, keep: bool = False) -> View:
         if sample.id in self._kept:
@@ -251,6 +258,29 @@ class Views:
         if keep:
             self._kept[sample.id] = view
         return view
+
+    def query(self, sample: Sample, bound: BoundVariant) -> View:
+        """A query view with the channels ``bound``'s query path reads (its features come from the cache)."""
+        key = self._keys.get(sample.id)
+        if key is None or self._cache is None:
+            return self(sample)
+        with self.timings.phase("load views"):
+            view = self.dataset.view(sample, channels=query_channels(bound))
+        self.timings.views["load views"] += 1
+        self._cache.know(view, key)
+        return view
+
+
+def query_channels(bound: BoundVariant) -> set[str]:
+    """The dataset channels beyond RGB that the stages of ``bound``'s query path consume."""
+    stages = [bound.descriptor, *([bound.parser] if bound.parser is not None and "P" in bound.variant.query_order else [])]
+    consumed = set().union(*(type(stage).consumes for stage in stages))
+    return {"rgb"} | ({"depth"} if Data.DEPTH in consumed else set()) | ({"semantic", "instance"} if Data.SEMANTIC in consumed else set())
+
+
+def dataset_identity(dataset: Dataset) -> str:
+    """What a dataset holds, as a string: its header and a digest of its plan (every view's id and pose)."""
+    return json.dumps([dataset.header, hashlib.blake2b((dataset.root / "plan.json").read_bytes(), digest_size=8).hexdigest()], sort_keys=True)
 
 
 @dataclass(frozen=True)
@@ -325,7 +355,7 @@ def run_variant(
         samples = dataset.split(split)
         probs, near = [np.zeros((0, dataset.num_classes), np.float32)], [np.zeros((0, dataset.num_classes), np.float32)]
         for start in range(0, len(samples), QUERY_CHUNK):
-            chunk = [build_graph(bound, views(s), memo=cache) for s in samples[start : start + QUERY_CHUNK]]
+            chunk = [build_graph(bound, views.query(s, bound), memo=cache) for s in samples[start : start + QUERY_CHUNK]]
             with timings.phase("evaluate"):
                 probs.append(model.predict(chunk))
                 if nearest:
@@ -424,11 +454,12 @@ def variant_task(job: VariantJob) -> VariantOutcome:
     # One cache per process: the variants a worker runs share what they computed of the
     # same synthetic views (SD, SPD and DSP render the same pseudo-views).
     cache = memo(("feature cache", job.cache), lambda: FeatureCache(job.cache))
+    identity = dataset_identity(dataset)
+    keys = memo(("view keys", job.cache, identity), lambda: cache.view_keys(identity))
     synthesizer = TrueRender(opened_workspace(job.oracle)) if job.oracle is not None else None
+    views = Views(dataset, timings, keys, cache)
     try:
-        result = run_variant(
-            job.variant, dataset, job.training, job.plan, Path(job.folder), cache, Views(dataset, timings), timings, synthesizer=synthesizer
-        )
+        result = run_variant(job.variant, dataset, job.training, job.plan, Path(job.folder), cache, views, timings, synthesizer=synthesizer)
     except MissingWeightsError as exc:
         return VariantOutcome(None, f"no weights: {exc}", timings)
     return VariantOutcome(result, "", timings)
@@ -464,7 +495,7 @@ def describe_real_views(
 
     # A stage that stored every view of this dataset before (a rerun) is not asked again:
     # no view is loaded to look.
-    identity = json.dumps([dataset.header, hashlib.blake2b((dataset.root / "plan.json").read_bytes(), digest_size=8).hexdigest()], sort_keys=True)
+    identity = dataset_identity(dataset)
     stages = tuple(stage for stage in cached_stages(variants) if not cache.complete(stage, identity))
     if not stages:
         return
@@ -474,8 +505,10 @@ def describe_real_views(
     jobs = [DescribeJob(str(dataset.root.resolve()), chunk, stages, root) for chunk in chunks(ids, batch)]
     done = 0
     incomplete: set[str] = set()
+    keys: dict[str, str] = {}
     for described in executor.map(describe_views, jobs, describe=DescribeJob.what):
         incomplete.update(described.without_weights)
+        keys.update(described.view_keys)
         for key, entry in described.entries:
             cache.put(key, entry)
         timings.add(described.seconds)
@@ -484,6 +517,7 @@ def describe_real_views(
         done += described.views
         if progress:
             progress("real views (parse, describe)", done, len(ids))
+    cache.record_view_keys(identity, keys)
     for stage in stages:
         if stage_key(stage) not in incomplete:
             cache.mark_complete(stage, identity)

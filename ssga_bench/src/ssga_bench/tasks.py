@@ -107,6 +107,8 @@ class Described:
     views: int
     without_weights: tuple[str, ...] = ()
     """Stages (their cache keys) that could not run for want of their weights."""
+    view_keys: tuple[tuple[str, str], ...] = ()
+    """``(sample id, content key)`` of every view of the chunk."""
 
 
 def describe_views(job: DescribeJob) -> Described:
@@ -137,7 +139,7 @@ def describe_views(job: DescribeJob) -> Described:
         seconds[phase] = seconds.get(phase, 0.0) + time.perf_counter() - start
         counts[phase] = counts.get(phase, 0) + len(todo)
         entries.extend(((skey, keys[i]), encode_entry(arrays)) for i, arrays in zip(todo, computed))
-    return Described(entries, seconds, counts, len(views), tuple(without_weights))
+    return Described(entries, seconds, counts, len(views), tuple(without_weights), tuple(zip(job.ids, keys)))
 
 
 # -- render a workspace's views ---------------------------------------------------------------
