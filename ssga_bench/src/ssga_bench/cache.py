@@ -168,7 +168,7 @@ class FeatureCache:
                 # once per run where the disk entry is there before the next one asks.
                 self._remember(key, arrays)
             value = unpack(arrays)
-        elif view.synthetic:
+        elif view.synthetic and key not in self._memory:  # read from disk (another worker wrote it): kept too
             self._remember(key, pack(value))
         return value
 

@@ -38,7 +38,7 @@ from collections.abc import Callable, Hashable, Iterator, Sequence
 from contextlib import contextmanager
 from typing import Any, Literal, TypeVar
 
-from pydantic import ConfigDict, Field, model_validator
+from pydantic import ConfigDict, Field, ValidationError, model_validator
 
 from ssga_core.config import Strict
 from ssga_core.errors import InputError, SsgaError
@@ -116,8 +116,8 @@ class ExecutionConfig(Strict):
             data["address"] = None  # the config's cluster address does not follow a switch away from Ray
         try:
             return ExecutionConfig.model_validate(data)
-        except ValueError as exc:  # pydantic's ValidationError: one line naming the options
-            detail = "; ".join(e["msg"].removeprefix("Value error, ") for e in getattr(exc, "errors", lambda: [])()) or str(exc)
+        except ValidationError as exc:  # one line naming the options
+            detail = "; ".join(e["msg"].removeprefix("Value error, ") for e in exc.errors())
             raise InputError(f"--executor/--workers/--address: {detail}") from None
 
 
@@ -221,7 +221,6 @@ def _raise(status: str, value: Any, what: str) -> None:
 class Executor(ABC):
     """Maps a task over jobs; results come back in job order (see the module docstring)."""
 
-    name: str = ""
     workers: int = 1
 
     def __enter__(self) -> Executor:
@@ -295,9 +294,6 @@ class Executor(ABC):
 class SerialExecutor(Executor):
     """Every task in this process, in order, single-threaded as a worker would be."""
 
-    name = "serial"
-    workers = 1
-
     def __init__(self) -> None:
         self._threads = _single_threaded_here()
         self._threads.__enter__()
@@ -321,7 +317,6 @@ class ProcessExecutor(Executor):
     """Spawned local worker processes (spawned, not forked: forking after Embree or torch
     have started their threads is unsafe), started on the first job and kept until closed."""
 
-    name = "processes"
 
     def __init__(self, workers: int = 0) -> None:
         self.workers = workers or local_cores()
@@ -368,7 +363,6 @@ class RayExecutor(Executor):
     """Ray tasks of one CPU each: on the Ray this process already runs, else a local Ray
     it starts (``address`` unset) or the cluster at ``address``."""
 
-    name = "ray"
 
     def __init__(self, workers: int = 0, address: str | None = None) -> None:
         try:

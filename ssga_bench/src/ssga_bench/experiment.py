@@ -30,7 +30,7 @@ import re
 import time
 from collections import Counter, defaultdict
 from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
-from contextlib import contextmanager
+from contextlib import AbstractContextManager, contextmanager
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -73,21 +73,13 @@ class Timings:
     wall: dict[str, float] = field(default_factory=lambda: defaultdict(float))
     views: dict[str, int] = field(default_factory=lambda: defaultdict(int))
 
-    @contextmanager
-    def phase(self, name: str) -> Iterator[None]:
-        start = time.perf_counter()
-        try:
-            yield
-        finally:
-            self.seconds[name] += time.perf_counter() - start
+    def phase(self, name: str) -> AbstractContextManager[None]:
+        """Time the block as work of ``name``."""
+        return _timed(self.seconds, name)
 
-    @contextmanager
-    def wall_phase(self, name: str) -> Iterator[None]:
-        start = time.perf_counter()
-        try:
-            yield
-        finally:
-            self.wall[name] += time.perf_counter() - start
+    def wall_phase(self, name: str) -> AbstractContextManager[None]:
+        """Time the block as a phase of the run the driver waits for."""
+        return _timed(self.wall, name)
 
     def add(self, other: Timings | Mapping[str, float]) -> None:
         """Add another's figures (a worker's)."""
@@ -116,6 +108,15 @@ class Timings:
             return out
 
         setattr(obj, method, timed)
+
+
+@contextmanager
+def _timed(into: dict[str, float], name: str) -> Iterator[None]:
+    start = time.perf_counter()
+    try:
+        yield
+    finally:
+        into[name] += time.perf_counter() - start
 
 
 def instrument(bound: BoundVariant, timings: Timings) -> None:
@@ -514,7 +515,7 @@ def describe_real_views(
         timings.add(described.seconds)
         for phase, count in described.counts.items():
             timings.views[phase] += count
-        done += described.views
+        done += described.counts["load views"]
         if progress:
             progress("real views (parse, describe)", done, len(ids))
     cache.record_view_keys(identity, keys)

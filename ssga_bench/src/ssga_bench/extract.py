@@ -29,7 +29,7 @@ import numpy as np
 
 from ssga_bench.execution import Executor, SerialExecutor
 from ssga_bench.io import atomic_write_bytes, read_png
-from ssga_bench.tasks import chunks
+from ssga_bench.tasks import chunks, span
 from ssga_core.config import ResolvedStage
 from ssga_core.data import View
 from ssga_core.errors import InputError
@@ -87,7 +87,7 @@ class ExtractJob:
     folder: str = "."
 
     def what(self) -> str:
-        return f"images {self.paths[0]} ... {self.paths[-1]}" if len(self.paths) > 1 else f"image {self.paths[0]}"
+        return span("image", self.paths)
 
 
 def extract_chunk(job: ExtractJob) -> list[tuple[np.ndarray, np.ndarray, tuple[int, int] | None]]:

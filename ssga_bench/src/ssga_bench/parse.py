@@ -40,7 +40,7 @@ import numpy as np
 from ssga_bench.extract import image_names
 from ssga_bench.execution import Executor, SerialExecutor
 from ssga_bench.io import atomic_write_bytes, depth_from_png16, ids_from_png16, ids_to_png16, png_bytes, read_png, writable_folder, write_json
-from ssga_bench.tasks import chunks
+from ssga_bench.tasks import chunks, span
 from ssga_core.config import ResolvedStage
 from ssga_bench.scene_graph_figure import draw_scene_graph
 from ssga_core.data import VIEW_DATA, Regions, SceneGraph, View
@@ -178,7 +178,7 @@ class ParseJob:
     preset: str | None
 
     def what(self) -> str:
-        return f"images {self.images[0]} ... {self.images[-1]}" if len(self.images) > 1 else f"image {self.images[0]}"
+        return span("image", self.images)
 
 
 @dataclass(frozen=True)

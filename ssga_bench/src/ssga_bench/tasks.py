@@ -34,6 +34,11 @@ def chunks(items: Sequence[T], size: int) -> Iterator[tuple[T, ...]]:
         yield tuple(items[start : start + size])
 
 
+def span(noun: str, items: Sequence[str]) -> str:
+    """A chunk's items for a message: ``"view a"``, or ``"views a ... z"``."""
+    return f"{noun}s {items[0]} ... {items[-1]}" if len(items) > 1 else f"{noun} {items[0]}"
+
+
 @contextmanager
 def in_folder(folder: str) -> Iterator[None]:
     """Run in ``folder`` (where the user's command ran): a worker opens the user's relative
@@ -92,7 +97,7 @@ class DescribeJob:
     cache: str | None = None
 
     def what(self) -> str:
-        return f"views {self.ids[0]} ... {self.ids[-1]} of {self.dataset}" if len(self.ids) > 1 else f"view {self.ids[0]} of {self.dataset}"
+        return f"{span('view', self.ids)} of {self.dataset}"
 
 
 @dataclass(frozen=True)
@@ -103,8 +108,7 @@ class Described:
     """``(stage key, view key)`` and the entry's encoded ``.npz``."""
     seconds: dict[str, float]
     counts: dict[str, int]
-    """Views computed per phase (``parse``, ``describe``), summed over its stages."""
-    views: int
+    """Views handled per phase (``load views``: the chunk; ``parse``, ``describe``: computed, summed over stages)."""
     without_weights: tuple[str, ...] = ()
     """Stages (their cache keys) that could not run for want of their weights."""
     view_keys: tuple[tuple[str, str], ...] = ()
@@ -139,7 +143,7 @@ def describe_views(job: DescribeJob) -> Described:
         seconds[phase] = seconds.get(phase, 0.0) + time.perf_counter() - start
         counts[phase] = counts.get(phase, 0) + len(todo)
         entries.extend(((skey, keys[i]), encode_entry(arrays)) for i, arrays in zip(todo, computed))
-    return Described(entries, seconds, counts, len(views), tuple(without_weights), tuple(zip(job.ids, keys)))
+    return Described(entries, seconds, counts, tuple(without_weights), tuple(zip(job.ids, keys)))
 
 
 # -- render a workspace's views ---------------------------------------------------------------
@@ -160,8 +164,7 @@ class RenderJob:
     captured: bool = False
 
     def what(self) -> str:
-        ids = [s[0] for s in self.samples]
-        return f"views {ids[0]} ... {ids[-1]}" if len(ids) > 1 else f"view {ids[0]}"
+        return span("view", [sample[0] for sample in self.samples])
 
 
 def render_views(job: RenderJob) -> list[tuple[str, dict[str, bytes]]]:
