@@ -182,6 +182,26 @@ def test_state_dict_round_trips_through_npz(tmp_path):
     np.testing.assert_array_equal(again.encode(x[:50]), bow.encode(x[:50]))
 
 
+def test_dictionaries_with_the_same_words_encode_a_view_once(monkeypatch):
+    x, _, _ = _blobs()
+    a = BagOfWords(BoWConfig(k=5, prototypes=6)).fit(x)
+    b = BagOfWords(BoWConfig(k=5, prototypes=6))
+    b.load_state_dict(a.state_dict())  # another variant's descriptor, fitted on the same views
+    other = BagOfWords(BoWConfig(k=5, prototypes=6, seed=9)).fit(x)
+    computed = []
+    distances = BagOfWords.distances
+    monkeypatch.setattr(BagOfWords, "distances", lambda self, d: computed.append(len(d)) or distances(self, d))
+    query = x[7:40].copy()
+    first = a.encode(query)
+    np.testing.assert_array_equal(b.encode(query.copy()), first)
+    assert computed == [33]  # b reused a's codes: same words, same features
+    assert not first.flags.writeable  # shared, so nobody may change them
+    other.encode(query)  # other words: encoded again
+    a.encode(query[:-1])  # other features: encoded again
+    assert computed == [33, 33, 32]
+    assert a.fingerprint() == b.fingerprint() != other.fingerprint()
+
+
 def test_state_dict_must_match_the_config():
     state = BagOfWords(BoWConfig(k=5, prototypes=6)).fit(_blobs()[0]).state_dict()
     with pytest.raises(InputError, match="k = 4"):

@@ -103,13 +103,47 @@ def test_runs_fuses_reports_and_resumes(tmp_path, dataset, stand_in_registry, mo
     monkeypatch.setattr("ssga_bench.experiment.train_gcn", no_training)
     # Nor is a real view looked at again, nor a finished variant handed to a worker.
     monkeypatch.setattr("ssga_bench.tasks.describe_views", no_task)
-    monkeypatch.setattr("ssga_bench.experiment.variant_task", no_task)
+    monkeypatch.setattr("ssga_bench.experiment.train_variant", no_task)
+    monkeypatch.setattr("ssga_bench.experiment.score_chunk", no_task)
     again, _ = run_experiment(exp, dataset, tmp_path)
     assert again.markdown() == report.markdown()
+    assert not (tmp_path / "scoring").exists()  # the scored chunks went once every variant's scores were written
     monkeypatch.undo()
     monkeypatch.setattr("ssga_bench.experiment.train_gcn", no_training)
     with pytest.raises(AssertionError, match="trained again"):
         run_experiment(experiment(stand_in_registry, seed=1), dataset, tmp_path)
+
+
+def test_an_interrupted_scoring_resumes_with_the_chunks_it_had_not_scored(tmp_path, dataset, stand_in_registry, monkeypatch):
+    from ssga_bench import experiment as runner
+
+    monkeypatch.setattr(runner, "SCORE_CHUNK", 4)  # several chunks of this small dataset's views
+    exp = experiment(stand_in_registry)
+    whole, _ = run_experiment(exp, dataset, tmp_path / "whole")
+
+    score_chunk, scored = runner.score_chunk, []
+
+    def stops_at_the_third(job):
+        if len(scored) == 2:
+            raise KeyboardInterrupt
+        scored.append(job.ids)
+        return score_chunk(job)
+
+    monkeypatch.setattr(runner, "score_chunk", stops_at_the_third)
+    with pytest.raises(KeyboardInterrupt):
+        run_experiment(exp, dataset, tmp_path / "cut")
+    assert len(list((tmp_path / "cut" / "scoring").rglob("*.npz"))) == 2
+    assert not (tmp_path / "cut" / "variants" / "PC-ST_PDS" / "scores.npy").exists()
+
+    again = []
+    monkeypatch.setattr(runner, "score_chunk", lambda job: again.append(job.ids) or score_chunk(job))
+    monkeypatch.setattr(runner, "train_gcn", lambda *a, **k: pytest.fail("trained again"))
+    resumed, _ = run_experiment(exp, dataset, tmp_path / "cut")
+    assert not set(again) & set(scored) and again  # the two scored chunks were not scored again
+    assert resumed.markdown() == whole.markdown()
+    for name in ("scores.npy", "nn_scores.npy", "val_scores.npy"):
+        assert (tmp_path / "cut" / "variants" / "PC_SD" / name).read_bytes() == (tmp_path / "whole" / "variants" / "PC_SD" / name).read_bytes()
+    assert not (tmp_path / "cut" / "scoring").exists()
 
 
 def test_the_feature_cache_parses_each_real_view_once(tmp_path, dataset, stand_in_registry, monkeypatch):
@@ -166,3 +200,17 @@ def test_the_oracle_renders_the_truth_with_an_exact_point_map():
     assert 0.9 < moved.visible.mean() < 0.96  # the strip that left the image
     both = TrueRender(workspace).synthesize_from([source, source], moved.view.pose)
     assert both[0].view is both[1].view  # rendered once for every source
+
+
+def test_a_descriptor_that_learns_without_a_state_is_refused_by_name():
+    from ssga_bench.experiment import fitted_state
+    from ssga_core import PluginError
+    from ssga_core.testing.stages import PatchColour
+
+    class Forgetful(PatchColour):
+        def fit(self, views, labels=None):
+            self.learned = len(views)
+
+    assert fitted_state(PatchColour()) == {}  # learns nothing: nothing to keep
+    with pytest.raises(PluginError, match="descriptor 'test-patch-colour' .* learns in fit\\(\\) but its state_dict\\(\\) is empty"):
+        fitted_state(Forgetful())

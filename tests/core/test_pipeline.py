@@ -208,3 +208,13 @@ def test_fusing_keeps_the_nearest_surface_and_hides_what_is_behind_it():
     near, far = fuse_syntheses([synthesis(1.0, 200), synthesis(2.0, 50)])
     assert (near.view.rgb == 200).all() and (near.view.depth == 1.0).all()
     assert near.visible.all() and not far.visible.any()
+
+
+def test_a_descriptor_that_learns_nothing_has_an_empty_state_and_refuses_one():
+    from ssga_core.testing.stages import PatchColour
+
+    d = PatchColour()
+    assert d.state_dict() == {}
+    d.load_state_dict({})
+    with pytest.raises(InputError, match="descriptor 'test-patch-colour' learns nothing, but got a fitted state of centroids"):
+        d.load_state_dict({"centroids": np.zeros((2, 2))})

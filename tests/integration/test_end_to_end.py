@@ -53,7 +53,7 @@ def test_run_builds_trains_fuses_and_reports(tmp_path, monkeypatch):
     assert test_views == 2 * 12 * 2
     timings = json.loads((out / "timings.json").read_text())
     assert {"parse", "describe", "synthesize", "train"} <= set(timings["work"])
-    assert {"real views (parse, describe)", "variants (training graphs, train, score)"} <= set(timings["wall"])
+    assert {"real views (parse, describe)", "variants: training graphs, train", "variants: score the query views"} <= set(timings["wall"])
     assert "Ensemble (RRF)" in result.output
 
     # Swapping the fuser reuses every trained variant.

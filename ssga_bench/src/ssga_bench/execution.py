@@ -3,7 +3,7 @@
 The benchmark's independent work (render a chunk of poses, parse and describe a chunk of
 views, train and score one variant) is written as *tasks*: plain module-level functions
 of one picklable job that return a picklable result (:mod:`ssga_bench.tasks`,
-:func:`ssga_bench.experiment.variant_task`). An :class:`Executor` maps a task over jobs
+:func:`ssga_bench.experiment.train_variant`, :func:`~ssga_bench.experiment.score_chunk`). An :class:`Executor` maps a task over jobs
 and yields the results in job order::
 
     with open_executor(ExecutionConfig(executor="processes")) as executor:

@@ -8,22 +8,29 @@ For each variant:
    (:func:`ssga_core.pipeline.training_graphs`) fits the descriptor and builds the
    graphs as the variant's order says, synthesizing or not. The runner never branches
    on the order and never calls a stage itself.
-2. **Train** the variant's GCN, **score** every test view (the query path,
-   :func:`ssga_core.pipeline.build_graph`).
+2. **Train** the variant's GCN (one task per variant, :func:`train_variant`), then
+   **score** every test and validation view (the query path,
+   :func:`ssga_core.pipeline.build_graph`) in chunks, each chunk through every trained
+   variant (:func:`score_chunk`).
 
 Then the fuser combines the variants' class probabilities and every row is evaluated
 per difficulty level (:mod:`ssga_bench.evaluation`).
 
-Outputs in the experiment folder: ``variants/<label>/`` (``gcn.pt``, ``scores.npy``,
-``training.json``), ``report.md``, ``results.csv``, ``results.png``, ``timings.json``.
-Each variant's outputs are keyed by a hash of everything they depend on, so a rerun
-skips finished variants and an interrupted run resumes with the next one.
+Outputs in the experiment folder: ``variants/<label>/`` (``gcn.pt``,
+``descriptor.npz``, ``nearest.npz``, ``training.json``, ``scores.npy``...),
+``report.md``, ``results.csv``, ``results.png``, ``timings.json``. Each variant's
+outputs are keyed by a hash of everything they depend on, so a rerun skips finished
+variants, an interrupted run trains only the variants it had not trained and scores
+only the chunks of views it had not scored (``scoring/``, removed once every variant's
+scores are written).
 """
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import hashlib
+import io
 import json
 import math
 import re
@@ -43,17 +50,18 @@ from ssga_bench.dataset import Dataset, build_workspace
 from ssga_bench.evaluation import Report, truth_ranks
 from ssga_bench.execution import Executor, memo, open_executor
 from ssga_bench.gcn import load_gcn, save_gcn, train_gcn
-from ssga_bench.io import atomic_write_bytes, load_npy, npy_bytes, read_json, warn, writable_folder, write_json
+from ssga_bench.io import atomic_write_bytes, load_npy, load_npz, npy_bytes, read_json, warn, writable_folder, write_json
 from ssga_bench.oracle import TrueRender
 from ssga_bench.protocol import Protocol, Sample
 from ssga_bench.queries import draw_queries, save_predictions
+from ssga_bench.tasks import chunks, span
 from ssga_bench.workspace import Workspace
 from ssga_core.config import ResolvedStage, ResolvedVariant
 from ssga_core.data import Data, SceneGraph, View
-from ssga_core.errors import MissingWeightsError, SsgaError
+from ssga_core.errors import MissingWeightsError, PluginError, SsgaError
 from ssga_core.geometry import Pose
 from ssga_core.pipeline import BoundVariant, CellTraining, Progress, PseudoView, build_graph, training_graphs
-from ssga_core.stages import Fuser, LocalDescriptor, Synthesizer
+from ssga_core.stages import Descriptor, Fuser, LocalDescriptor, Synthesizer
 
 
 @dataclass
@@ -91,6 +99,17 @@ class Timings:
             other = other.seconds
         for phase, seconds in other.items():
             self.seconds[phase] += seconds
+
+    def clear(self) -> None:
+        for figures in (self.seconds, self.wall, self.views):
+            figures.clear()
+
+    def take(self) -> Timings:
+        """A copy of the figures, which are then cleared (a worker's, sent back per task)."""
+        out = Timings()
+        out.add(self)
+        self.clear()
+        return out
 
     def to_json(self) -> dict[str, dict[str, float]]:
         return {"wall": dict(self.wall), "work": dict(self.seconds), "views": dict(self.views)}
@@ -237,18 +256,11 @@ def variant_key(rv: ResolvedVariant, training: TrainingConfig, dataset: Dataset,
 
 
 class Views:
-    """Loads dataset views, keeping the few real training views in memory.
+    """Loads dataset views (timed), keeping the few real training views in memory."""
 
-    Args:
-        keys: the content key of each view, by sample id, as the describing phase hashed
-            them (:meth:`FeatureCache.view_keys`): a query then loads only the channels its
-            stages read, and ``cache`` is told its key instead of hashing what it loaded.
-    """
-
-    def __init__(self, dataset: Dataset, timings: Timings, keys: Mapping[str, str] | None = None, cache: FeatureCache | None = None) -> None:
+    def __init__(self, dataset: Dataset, timings: Timings) -> None:
         self.dataset, self.timings = dataset, timings
         self._kept: dict[str, View] = {}
-        self._keys, self._cache = keys or {}, cache
 
     def __call__(self, sample: Sample, keep: bool = False) -> View:
         if sample.id in self._kept:
@@ -258,17 +270,6 @@ class Views:
         self.timings.views["load views"] += 1
         if keep:
             self._kept[sample.id] = view
-        return view
-
-    def query(self, sample: Sample, bound: BoundVariant) -> View:
-        """A query view with the channels ``bound``'s query path reads (its features come from the cache)."""
-        key = self._keys.get(sample.id)
-        if key is None or self._cache is None:
-            return self(sample)
-        with self.timings.phase("load views"):
-            view = self.dataset.view(sample, channels=query_channels(bound))
-        self.timings.views["load views"] += 1
-        self._cache.know(view, key)
         return view
 
 
@@ -305,12 +306,32 @@ class VariantResult:
 
 
 _OUTPUTS = {"test": "scores.npy", "nearest": "nn_scores.npy", "val": "val_scores.npy"}
+_TRAINED = ("gcn.pt", "descriptor.npz", "nearest.npz")
+"""What a trained variant's folder holds for the scoring tasks, besides ``training.json``."""
 
-QUERY_CHUNK = 1024
-"""Query graphs built and scored at a time (the GCN's prediction batch)."""
+SCORE_CHUNK = 64
+"""Query views per scoring task (and per GCN prediction call): a fixed cut, so the scores
+are the same whatever the executor; small enough for every worker to get its share."""
 
 
-def run_variant(
+@dataclass(frozen=True)
+class Trained:
+    """A trained variant, as its folder holds it: what a scoring task needs to score with it.
+
+    Attributes:
+        folder: ``gcn.pt``, ``descriptor.npz`` (the descriptor's fitted state),
+            ``nearest.npz`` (the training graphs' whole-image features and classes, for
+            the nearest-neighbour reference) and ``training.json`` (the classifier's
+            training record, with the variant's ``key``).
+    """
+
+    variant: ResolvedVariant
+    folder: str
+    key: str
+    training: dict[str, Any] = field(compare=False, repr=False)
+
+
+def train_variant_in(
     rv: ResolvedVariant,
     dataset: Dataset,
     training: TrainingConfig,
@@ -322,17 +343,21 @@ def run_variant(
     progress: Progress | None = None,
     *,
     synthesizer: Synthesizer | None = None,
-) -> VariantResult:
-    """Train and score one variant (resuming: a finished run with the same key is read back).
+) -> Trained:
+    """Build one variant's training graphs, fit its descriptor, train its GCN, and leave them in
+    ``folder`` (resuming: a variant trained before with the same key is not trained again).
 
     Args:
         synthesizer: replaces the variant's own (the oracle's true renders).
     """
     extra = synthesizer.name if synthesizer is not None else ""
-    finished = finished_variant(rv, dataset, training, folder, extra)
-    if finished is not None:
-        return finished
     key = variant_key(rv, training, dataset, extra=extra)
+    trained = _trained(rv, folder, key)
+    if trained is not None:
+        return trained
+    # Scores of an earlier training (another key) must not pass for this one's.
+    for file in _OUTPUTS.values():
+        (folder / file).unlink(missing_ok=True)
 
     bound = rv.bind()
     if synthesizer is not None:
@@ -346,45 +371,50 @@ def run_variant(
     with timings.phase("train"):
         model, report = train_gcn(graphs, np.array(labels), dataset.num_classes, training, groups=groups)
     save_gcn(model, folder / "gcn.pt")
-
-    model = load_gcn(folder / "gcn.pt")
-
-    def scored(split: str, nearest: bool = False) -> tuple[np.ndarray, np.ndarray | None]:
-        # Query graphs stream through in chunks (the GCN's own prediction batch, so the
-        # scores are those of one call over all of them): memory is bounded by the
-        # chunk, not by the number of test views.
-        samples = dataset.split(split)
-        probs, near = [np.zeros((0, dataset.num_classes), np.float32)], [np.zeros((0, dataset.num_classes), np.float32)]
-        for start in range(0, len(samples), QUERY_CHUNK):
-            chunk = [build_graph(bound, views.query(s, bound), memo=cache) for s in samples[start : start + QUERY_CHUNK]]
-            with timings.phase("evaluate"):
-                probs.append(model.predict(chunk))
-                if nearest:
-                    near.append(nearest_neighbour_scores(graphs, np.array(labels), chunk, dataset.num_classes))
-            if progress:
-                progress(f"{split} graphs", start + len(chunk), len(samples))
-        return np.concatenate(probs), np.concatenate(near) if nearest else None
-
-    test, near = scored("test", nearest=True)
-    val, _ = scored("val")
-    assert near is not None
-    result = VariantResult(
-        test=test, nearest=near, val=val, training={"key": key, "label": bound.label, "graphs": len(graphs), **asdict(report)}
-    )
-    for name, file in _OUTPUTS.items():
-        atomic_write_bytes(folder / file, npy_bytes(getattr(result, name)))
-    write_json(folder / "training.json", result.training)
-    return result
+    atomic_write_bytes(folder / "descriptor.npz", npz_bytes(fitted_state(bound.descriptor)))
+    atomic_write_bytes(folder / "nearest.npz", npz_bytes({"features": whole_image_features(graphs), "labels": np.asarray(labels, np.int64)}))
+    record = {"key": key, "label": bound.label, "graphs": len(graphs), **asdict(report)}
+    write_json(folder / "training.json", record)  # last: the folder is a trained variant once it is there
+    return Trained(rv, str(folder), key, record)
 
 
-def nearest_neighbour_scores(train: Sequence[SceneGraph], labels: np.ndarray, queries: Sequence[SceneGraph], num_classes: int) -> np.ndarray:
-    """``(queries, classes)``: cosine similarity of each query's whole-image node to the nearest training graph of each class (-1 for a class without one)."""
+def _trained(rv: ResolvedVariant, folder: Path, key: str) -> Trained | None:
+    try:
+        record = read_json(folder / "training.json") if (folder / "training.json").exists() else None
+    except SsgaError:
+        return None
+    if not isinstance(record, dict) or record.get("key") != key or not all((folder / f).exists() for f in _TRAINED):
+        return None
+    return Trained(rv, str(folder), key, record)
 
-    def whole(graphs: Sequence[SceneGraph]) -> np.ndarray:
-        x = np.stack([g.features[0] for g in graphs]).astype(np.float32) if graphs else np.zeros((0, 1), np.float32)
-        return x / np.maximum(np.linalg.norm(x, axis=1, keepdims=True), 1e-12)
 
-    similarity = whole(queries) @ whole(train).T  # (Q, T)
+def fitted_state(descriptor: Descriptor) -> dict[str, np.ndarray]:
+    """What ``descriptor`` learned in ``fit``, for the scoring workers (:meth:`Descriptor.state_dict`)."""
+    state = descriptor.state_dict()
+    if not state and type(descriptor).fit is not Descriptor.fit:
+        raise PluginError(
+            f"descriptor {descriptor.name!r} ({type(descriptor).__module__}) learns in fit() but its state_dict() is empty: "
+            "write state_dict and load_state_dict, so that other processes score with what it learned (docs/writing_plugins.md)"
+        )
+    return state
+
+
+def npz_bytes(arrays: Mapping[str, np.ndarray]) -> bytes:
+    buffer = io.BytesIO()
+    np.savez(buffer, **arrays)
+    return buffer.getvalue()
+
+
+def whole_image_features(graphs: Sequence[SceneGraph]) -> np.ndarray:
+    """``(graphs, dim)``: each graph's whole-image node feature, scaled to unit length."""
+    x = np.stack([g.features[0] for g in graphs]).astype(np.float32) if graphs else np.zeros((0, 1), np.float32)
+    return x / np.maximum(np.linalg.norm(x, axis=1, keepdims=True), 1e-12)
+
+
+def nearest_neighbour_scores(train: np.ndarray, labels: np.ndarray, queries: Sequence[SceneGraph], num_classes: int) -> np.ndarray:
+    """``(queries, classes)``: cosine similarity of each query's whole-image node to the nearest
+    training graph of each class (``train``: :func:`whole_image_features`; -1 for a class without one)."""
+    similarity = whole_image_features(queries) @ train.T  # (Q, T)
     out = np.full((len(queries), num_classes), -1.0, dtype=np.float32)
     for c in np.unique(labels):
         out[:, c] = similarity[:, labels == c].max(axis=1)
@@ -418,7 +448,7 @@ def _finished(folder: Path, key: str, shapes: dict[str, tuple[int, int]]) -> Var
 
 @dataclass(frozen=True)
 class VariantJob:
-    """One variant to train and score, as a task (:func:`variant_task`) ships it to a worker.
+    """One variant to train, as a task (:func:`train_variant`) ships it to a worker.
 
     Attributes:
         oracle: the workspace source, to train on its true renders at the same poses
@@ -439,15 +469,15 @@ class VariantJob:
 
 @dataclass(frozen=True)
 class VariantOutcome:
-    """What :func:`variant_task` sends back: the result, or why the variant could not run, and its timings."""
+    """What :func:`train_variant` sends back: the trained variant, or why it could not run, and its timings."""
 
-    result: VariantResult | None
+    trained: Trained | None
     not_run: str
     timings: Timings
 
 
-def variant_task(job: VariantJob) -> VariantOutcome:
-    """Train and score one variant (resuming: :func:`run_variant`); a missing checkpoint is an outcome, not a failure."""
+def train_variant(job: VariantJob) -> VariantOutcome:
+    """Train one variant (resuming: :func:`train_variant_in`); a missing checkpoint is an outcome, not a failure."""
     from ssga_bench.tasks import opened_dataset, opened_workspace
 
     timings = Timings()
@@ -455,15 +485,188 @@ def variant_task(job: VariantJob) -> VariantOutcome:
     # One cache per process: the variants a worker runs share what they computed of the
     # same synthetic views (SD, SPD and DSP render the same pseudo-views).
     cache = memo(("feature cache", job.cache), lambda: FeatureCache(job.cache))
-    identity = dataset_identity(dataset)
-    keys = memo(("view keys", job.cache, identity), lambda: cache.view_keys(identity))
     synthesizer = TrueRender(opened_workspace(job.oracle)) if job.oracle is not None else None
-    views = Views(dataset, timings, keys, cache)
+    views = Views(dataset, timings)
     try:
-        result = run_variant(job.variant, dataset, job.training, job.plan, Path(job.folder), cache, views, timings, synthesizer=synthesizer)
+        trained = train_variant_in(job.variant, dataset, job.training, job.plan, Path(job.folder), cache, views, timings, synthesizer=synthesizer)
     except MissingWeightsError as exc:
         return VariantOutcome(None, f"no weights: {exc}", timings)
-    return VariantOutcome(result, "", timings)
+    return VariantOutcome(trained, "", timings)
+
+
+# -- scoring the query views ------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class ScoreJob:
+    """A chunk of a split's views to score with every trained variant of a run.
+
+    Attributes:
+        ids: the views' sample ids, in the split's order.
+        nearest: also score the nearest-neighbour reference (the test views).
+    """
+
+    dataset: str
+    split: str
+    ids: tuple[str, ...]
+    variants: tuple[Trained, ...]
+    cache: str
+    nearest: bool
+
+    def what(self) -> str:
+        return f"scoring {span('view', self.ids)} ({self.split})"
+
+
+@dataclass(frozen=True)
+class ChunkScores:
+    """What :func:`score_chunk` sends back: per trained variant, ``(views, classes)`` class
+    probabilities and nearest-neighbour scores (None unless asked), and its timings."""
+
+    probs: tuple[np.ndarray, ...]
+    nearest: tuple[np.ndarray, ...] | None
+    timings: Timings
+
+
+@dataclass
+class _Scorer:
+    """A trained variant opened in a worker: its stages with the fitted descriptor, its GCN, its reference."""
+
+    bound: BoundVariant
+    model: Any
+    train: np.ndarray
+    labels: np.ndarray
+
+
+def _open_trained(trained: Trained, timings: Timings) -> _Scorer:
+    bound = trained.variant.bind()
+    folder = Path(trained.folder)
+    bound.descriptor.load_state_dict(load_npz(folder / "descriptor.npz"))
+    nearest = load_npz(folder / "nearest.npz")
+    instrument(bound, timings)
+    return _Scorer(bound, load_gcn(folder / "gcn.pt"), nearest["features"], nearest["labels"])
+
+
+def score_chunk(job: ScoreJob) -> ChunkScores:
+    """Class scores of a chunk of query views under every trained variant.
+
+    Each view is loaded once for all variants, which build its graph in turn (its parts
+    and local features come from the feature cache): variants that share a fitted
+    dictionary then encode its features once (:data:`ssga_bench.bow.RECENT_CODES`).
+    """
+    from ssga_bench.tasks import opened_dataset
+
+    dataset = opened_dataset(job.dataset)
+    cache = memo(("feature cache", job.cache), lambda: FeatureCache(job.cache))
+    keys = memo(("view keys", job.cache, dataset_identity(dataset)), lambda: cache.view_keys(dataset_identity(dataset)))
+    def open_all() -> tuple[Timings, list[_Scorer]]:
+        timings = Timings()
+        return timings, [_open_trained(t, timings) for t in job.variants]
+
+    # The variants are opened once per worker, instrumented with one timings object that
+    # each chunk empties and sends back.
+    timings, scorers = memo(("trained variants", tuple((t.folder, t.key) for t in job.variants)), open_all)
+    timings.clear()
+    channels = set().union(*(query_channels(s.bound) for s in scorers))
+    graphs: list[list[SceneGraph]] = [[] for _ in scorers]
+    for sample_id in job.ids:
+        sample = dataset.sample(sample_id)
+        key = keys.get(sample_id)
+        with timings.phase("load views"):
+            view = dataset.view(sample, channels=channels) if key is not None else dataset.view(sample)
+        timings.views["load views"] += 1
+        if key is not None:
+            cache.know(view, key)
+        for scorer, built in zip(scorers, graphs):
+            built.append(build_graph(scorer.bound, view, memo=cache))
+    with timings.phase("evaluate"):
+        probs = tuple(s.model.predict(g, batch_size=SCORE_CHUNK) for s, g in zip(scorers, graphs))
+        nearest = (
+            tuple(nearest_neighbour_scores(s.train, s.labels, g, dataset.num_classes) for s, g in zip(scorers, graphs)) if job.nearest else None
+        )
+    return ChunkScores(probs, nearest, timings.take())
+
+
+def score_queries(
+    trained: Sequence[Trained],
+    dataset: Dataset,
+    out: Path,
+    cache: FeatureCache,
+    executor: Executor,
+    timings: Timings,
+    progress: Progress | None = None,
+) -> list[VariantResult]:
+    """Score the test and validation views with every trained variant, in chunks on the
+    executor's workers; write each variant's score files and return its result.
+
+    Each finished chunk is kept in ``out/scoring/<digest>/`` (the digest names the trained
+    variants) until every variant's scores are written, so an interrupted run scores only
+    the chunks it had not finished.
+    """
+    if not trained:
+        return []
+    digest = hashlib.blake2b(json.dumps([t.key for t in trained]).encode(), digest_size=8).hexdigest()
+    folder = out / "scoring" / digest
+    root, cache_folder = str(dataset.root.resolve()), str(cache.root.resolve())  # type: ignore[union-attr]
+    jobs: list[tuple[str, int, ScoreJob]] = []
+    for split in ("test", "val"):
+        ids = [s.id for s in dataset.split(split)]
+        for i, chunk in enumerate(chunks(ids, SCORE_CHUNK)):
+            jobs.append((split, i, ScoreJob(root, split, chunk, tuple(trained), cache_folder, split == "test")))
+
+    def chunk_file(split: str, i: int) -> Path:
+        return folder / f"{split}-{i:06d}.npz"
+
+    def read_chunk(split: str, i: int, job: ScoreJob) -> ChunkScores | None:
+        path = chunk_file(split, i)
+        if not path.exists():
+            return None
+        try:
+            arrays = load_npz(path)
+        except SsgaError:
+            return None  # cut short by a full disk, say: scored again
+        n, shape = len(trained), (len(job.ids), dataset.num_classes)
+        names = [f"probs-{v}" for v in range(n)] + ([f"nearest-{v}" for v in range(n)] if job.nearest else [])
+        if any(name not in arrays or arrays[name].shape != shape for name in names):
+            return None
+        nearest = tuple(arrays[f"nearest-{v}"] for v in range(n)) if job.nearest else None
+        return ChunkScores(tuple(arrays[f"probs-{v}"] for v in range(n)), nearest, Timings())
+
+    kept = {(split, i): read_chunk(split, i, job) for split, i, job in jobs}
+    todo = [(split, i, job) for split, i, job in jobs if kept[(split, i)] is None]
+    total = sum(len(job.ids) for _, _, job in jobs)
+    done = sum(len(job.ids) for split, i, job in jobs if kept[(split, i)] is not None)
+    for (split, i, job), scores in zip(todo, executor.map(score_chunk, [job for _, _, job in todo], describe=ScoreJob.what)):
+        arrays = {f"probs-{v}": p for v, p in enumerate(scores.probs)}
+        arrays |= {f"nearest-{v}": p for v, p in enumerate(scores.nearest or ())}
+        atomic_write_bytes(chunk_file(split, i), npz_bytes(arrays))
+        timings.add(scores.timings)
+        kept[(split, i)] = scores
+        done += len(job.ids)
+        if progress:
+            progress("score the query views", done, total)
+
+    def joined(split: str, v: int, nearest: bool = False) -> np.ndarray:
+        parts = [np.zeros((0, dataset.num_classes), np.float32)]
+        for s, i, _ in jobs:
+            if s == split:
+                scores = kept[(s, i)]
+                assert scores is not None and (not nearest or scores.nearest is not None)
+                parts.append(scores.nearest[v] if nearest else scores.probs[v])  # type: ignore[index]
+        return np.concatenate(parts)
+
+    results = []
+    for v, t in enumerate(trained):
+        result = VariantResult(test=joined("test", v), nearest=joined("test", v, nearest=True), val=joined("val", v), training=t.training)
+        for name, file in _OUTPUTS.items():
+            atomic_write_bytes(Path(t.folder) / file, npy_bytes(getattr(result, name)))
+        results.append(result)
+    # Every variant's scores are written: the chunks are not needed any more (ssga wrote them).
+    for split, i, _ in jobs:
+        chunk_file(split, i).unlink(missing_ok=True)
+    with contextlib.suppress(OSError):
+        folder.rmdir()
+        folder.parent.rmdir()  # only if no other run's chunks are there
+    return results
 
 
 def cached_stages(variants: Sequence[ResolvedVariant]) -> list[ResolvedStage]:
@@ -606,25 +809,36 @@ def run_experiment(
     results: dict[str, VariantResult] = {}
     oracle_results: dict[str, VariantResult] = {}
     not_run: dict[str, str] = {}
+
+    def keep(job: VariantJob, result: VariantResult) -> None:
+        (oracle_results if job.oracle is not None else results)[job.variant.label] = result
+
     # Finished variants are read back here: a rerun starts no worker for them.
-    done = {id(job): finished_variant(job.variant, dataset, config.training, Path(job.folder), TrueRender.name if job.oracle else "") for job in jobs}
-    outcomes_of = {id(job): VariantOutcome(result, "", Timings()) for job in jobs if (result := done[id(job)]) is not None}
-    todo = [job for job in jobs if id(job) not in outcomes_of]
-    with timings.wall_phase("variants (training graphs, train, score)"):
-        ran = executor.map(variant_task, todo, describe=VariantJob.what, progress=(lambda d, n: progress("variants", d, n)) if progress else None)
-        outcomes = (outcomes_of[id(job)] if id(job) in outcomes_of else next(ran) for job in jobs)
-        for job, outcome in zip(jobs, outcomes):
+    todo = []
+    for job in jobs:
+        finished = finished_variant(job.variant, dataset, config.training, Path(job.folder), TrueRender.name if job.oracle else "")
+        if finished is not None:
+            keep(job, finished)
+        else:
+            todo.append(job)
+    trained: list[tuple[VariantJob, Trained]] = []
+    with timings.wall_phase("variants: training graphs, train"):
+        ran = executor.map(train_variant, todo, describe=VariantJob.what, progress=(lambda d, n: progress("train the variants", d, n)) if progress else None)
+        for job, outcome in zip(todo, ran):
             timings.add(outcome.timings)
-            label = job.variant.label
-            if outcome.result is None:
+            if outcome.trained is None:
                 # A row whose checkpoint is not there is reported as such; the others still run.
                 if job.oracle is None:
-                    not_run[label] = outcome.not_run
-                    warn(f"{label}: not run: {outcome.not_run.removeprefix('no weights: ')}")
+                    not_run[job.variant.label] = outcome.not_run
+                    warn(f"{job.variant.label}: not run: {outcome.not_run.removeprefix('no weights: ')}")
                 continue
-            (oracle_results if job.oracle is not None else results)[label] = outcome.result
+            trained.append((job, outcome.trained))
             if variant_progress:
-                variant_progress(job.what())
+                variant_progress(f"{job.what()} trained")
+    with timings.wall_phase("variants: score the query views"):
+        scored = score_queries([t for _, t in trained], dataset, out, cache, executor, timings, progress)
+    for (job, _), result in zip(trained, scored):
+        keep(job, result)
     not_run = {rv.label: not_run[rv.label] for rv in experiment.variants if rv.label in not_run}  # in the config's order
     if not results:
         raise SsgaError(f"no variant could run: {'; '.join(not_run.values())}")
@@ -658,9 +872,9 @@ def run_experiment(
     references[f"nearest neighbour ({reference_variant})"] = results[reference_variant].nearest
     series = {selected_label: f"Ensemble ({fuser.tag()}) chosen on validation", f"nearest neighbour ({reference_variant})": "nearest neighbour (best single)"}
 
-    for label, oracle in oracle_results.items():
-        if label in results:
-            references[f"oracle: {label} on true renders"] = oracle.test
+    for label in labels:  # the config's order, whichever finished first
+        if label in oracle_results:
+            references[f"oracle: {label} on true renders"] = oracle_results[label].test
 
     flags = {label: "training stopped at the epoch cap" for label in labels if results[label].training.get("stopped_at_cap")}
     landmark = {s.cell: s.pose.yaw for s in dataset.split("train")}

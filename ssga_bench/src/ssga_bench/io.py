@@ -15,6 +15,7 @@ import json
 import os
 import sys
 import tempfile
+import zipfile
 from collections.abc import Iterable, Iterator
 from pathlib import Path
 from typing import Any
@@ -95,6 +96,15 @@ def npy_bytes(array: np.ndarray) -> bytes:
     out = io.BytesIO()
     np.save(out, array)
     return out.getvalue()
+
+
+def load_npz(path: str | Path) -> dict[str, np.ndarray]:
+    """Every array of an ``.npz`` file ssga wrote; a damaged or missing one is a one-line error."""
+    try:
+        with np.load(path, allow_pickle=False) as archive:
+            return {name: archive[name] for name in archive.files}
+    except (OSError, ValueError, EOFError, TypeError, zipfile.BadZipFile) as exc:
+        raise InputError(f"{path}: not an .npz file of arrays ({type(exc).__name__}: {' '.join(str(exc).split())[:120]})") from None
 
 
 def load_npy(path: str | Path, shape: tuple[int, ...], *, what: str) -> np.ndarray | None:

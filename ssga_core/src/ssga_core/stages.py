@@ -134,7 +134,26 @@ class Descriptor(Stage):
         Called once per variant before any graph is built, with the training views
         (each cell's real view and, for variants with S, a synthetic view of each other
         class) and their place classes. The default learns nothing.
+
+        A descriptor that learns here also writes :meth:`state_dict` and
+        :meth:`load_state_dict`: the runner fits it once, then scores query views in
+        other processes (or machines) from that state.
         """
+
+    def state_dict(self) -> dict[str, np.ndarray]:
+        """What :meth:`fit` learned, as named arrays (a dictionary, a classifier's weights and
+        classes): with the config, everything a fitted descriptor is. The default: nothing."""
+        return {}
+
+    def load_state_dict(self, state: Mapping[str, np.ndarray]) -> None:
+        """Become the descriptor :meth:`state_dict` was taken from, without fitting.
+
+        Raises:
+            InputError: ``state`` is not what this descriptor stores (a missing array, a
+                wrong shape).
+        """
+        if state:
+            raise InputError(f"descriptor {self.name!r} learns nothing, but got a fitted state of {', '.join(sorted(state))}")
 
     @property
     @abstractmethod

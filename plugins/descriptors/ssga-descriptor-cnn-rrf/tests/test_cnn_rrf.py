@@ -18,7 +18,7 @@ from ssga_descriptor_cnn_rrf.training import expand_box
 from ssga_descriptor_cnn_rrf.vgg import VGG
 
 from ssga_bench import NotFittedError, checkpoint_bytes, validate_experiment
-from ssga_core import Camera, CheckpointError, Pose, Regions, View
+from ssga_core import Camera, CheckpointError, InputError, Pose, Regions, View
 from ssga_core.testing import check_descriptor, check_descriptor_in_all_orders, get_plugin_manager, make_view
 
 TINY = {"width": 1 / 16, "hidden": 32, "pool": 1, "input_size": 32, "min_crop": 4.0, "batch_size": 16}
@@ -139,6 +139,20 @@ def test_features_are_reciprocal_ranks_whole_image_first_then_regions(trained, t
     tight.fit(*colour_set())
     top = tight.classes[tight.describe(view, regions)[1:].argmax(axis=1)]
     assert list(top) == region_classes
+
+
+def test_the_fitted_state_makes_the_same_descriptor_elsewhere(trained, tmp_path):
+    view, regions, _ = quadrants()
+    state = trained.state_dict()
+    assert list(state["classes"]) == [10, 13, 16, 19] and all(isinstance(a, np.ndarray) for a in state.values())
+    copy = tiny(tmp_path)
+    copy.load_state_dict(state)  # no fit: the classifier as it was trained
+    np.testing.assert_array_equal(copy.describe(view, regions), trained.describe(view, regions))
+    assert copy.dim == 4 and copy.training is None
+    with pytest.raises(InputError, match="fitted state is not a vgg16_bn .* of 4 classes"):
+        tiny(tmp_path, hidden=16).load_state_dict(state)
+    with pytest.raises(InputError, match="fitted state without 'classes'"):
+        tiny(tmp_path).load_state_dict({k: v for k, v in state.items() if k != "classes"})
 
 
 def test_region_crops_grow_by_the_margin_and_stay_inside():

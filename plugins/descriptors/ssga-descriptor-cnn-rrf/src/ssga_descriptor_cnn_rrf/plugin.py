@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import json
 import os
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -220,6 +220,28 @@ class CnnRrf(Learned, RegionDescriptor):
                     self.cache_file = path
         net.eval()
         self._net, self._classes = net, classes
+
+    def state_dict(self) -> dict[str, np.ndarray]:
+        """The fitted classifier: its place ``classes`` and its network's tensors (``net.<key>``)."""
+        net = self._fitted()
+        return {"classes": self.classes.copy(), **{f"net.{k}": v.detach().cpu().numpy() for k, v in net.state_dict().items()}}
+
+    def load_state_dict(self, state: Mapping[str, np.ndarray]) -> None:
+        """The classifier :meth:`state_dict` gave, for this config's network."""
+        import torch
+
+        if "classes" not in state:
+            raise InputError(f"{self.who}: fitted state without 'classes'")
+        classes = np.asarray(state["classes"], dtype=np.int64)
+        net = self._network(len(classes))
+        weights = {k.removeprefix("net."): torch.from_numpy(np.asarray(v)) for k, v in state.items() if k.startswith("net.")}
+        try:
+            net.load_state_dict(weights, strict=True)
+        except RuntimeError as exc:
+            raise InputError(f"{self.who}: the fitted state is not a {self._layout_name()} of {len(classes)} classes: {' '.join(str(exc).split())[:200]}") from None
+        net.to(device=self.device, memory_format=torch.channels_last)
+        net.eval()
+        self._net, self._classes, self.training, self.cache_file = net, classes, None, None
 
     def accuracy(self, views: Sequence[View], labels: Sequence[int]) -> float:
         """Top-1 accuracy of the fitted classifier on whole ``views`` (labels outside :attr:`classes` count as wrong)."""
