@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import math
 
 import numpy as np
@@ -214,3 +215,17 @@ def test_a_descriptor_that_learns_without_a_state_is_refused_by_name():
     assert fitted_state(PatchColour()) == {}  # learns nothing: nothing to keep
     with pytest.raises(PluginError, match="descriptor 'test-patch-colour' .* learns in fit\\(\\) but its state_dict\\(\\) is empty"):
         fitted_state(Forgetful())
+
+
+def test_graph_matching_classifies_without_training_a_network(tmp_path, dataset, stand_in_registry, monkeypatch):
+    monkeypatch.setattr("ssga_bench.experiment.train_gcn", lambda *a, **k: pytest.fail("a GCN was trained"))
+    exp = experiment(stand_in_registry, classifier="graph-match", match_whole=0.25)
+    report, _ = run_experiment(exp, dataset, tmp_path)
+    folder = tmp_path / "variants" / "PC-ST_PDS"
+    assert (folder / "matcher.npz").exists() and not (folder / "gcn.pt").exists()
+    scores = np.load(folder / "scores.npy")
+    np.testing.assert_allclose(scores.sum(axis=1), 1.0, rtol=1e-5)
+    assert json.loads((folder / "training.json").read_text())["classifier"] == "graph-match"
+    assert set(report.variants) == {"PC-ST (PDS)", "PC-ST (PD)", "PC (SD)"}
+    again, _ = run_experiment(exp, dataset, tmp_path)  # finished: read back
+    assert again.markdown() == report.markdown()

@@ -52,6 +52,18 @@ class TrainingConfig(Strict):
 
     model_config = ConfigDict(allow_inf_nan=False)
 
+    classifier: Literal["gcn", "graph-match"] = Field(
+        default="gcn",
+        description="Each variant's place classifier: 'gcn' (the paper's graph convolutional network) or 'graph-match' "
+        "(a query takes the class of the training graphs it matches best, whole image and parts matched part to part; "
+        "nothing to train: ssga_bench.matching).",
+    )
+    match_whole: float = Field(
+        default=0.5,
+        ge=0.0,
+        le=1.0,
+        description="classifier = 'graph-match': the whole image's share of a match; the parts' is the rest.",
+    )
     hidden: int = Field(default=256, gt=0, le=8192, description="Hidden width of the GCN.")
     layers: int = Field(default=2, ge=1, le=32, description="Graph-convolution layers.")
     dropout: float = Field(default=0.0, ge=0.0, lt=1.0, description="Dropout on the hidden node states and on the pooled state.")

@@ -51,6 +51,7 @@ from ssga_bench.evaluation import Report, truth_ranks
 from ssga_bench.execution import Executor, memo, open_executor
 from ssga_bench.gcn import load_gcn, save_gcn, train_gcn
 from ssga_bench.io import atomic_write_bytes, load_npy, load_npz, npy_bytes, read_json, warn, writable_folder, write_json
+from ssga_bench.matching import GraphMatcher
 from ssga_bench.oracle import TrueRender
 from ssga_bench.protocol import Protocol, Sample
 from ssga_bench.queries import draw_queries, save_predictions
@@ -306,8 +307,10 @@ class VariantResult:
 
 
 _OUTPUTS = {"test": "scores.npy", "nearest": "nn_scores.npy", "val": "val_scores.npy"}
-_TRAINED = ("gcn.pt", "descriptor.npz", "nearest.npz")
-"""What a trained variant's folder holds for the scoring tasks, besides ``training.json``."""
+_TRAINED = ("descriptor.npz", "nearest.npz")
+"""What a trained variant's folder holds for the scoring tasks, besides ``training.json`` and its classifier."""
+CLASSIFIER_FILES = {"gcn": "gcn.pt", "graph-match": "matcher.npz"}
+"""Each ``[training] classifier``'s file in a trained variant's folder."""
 
 SCORE_CHUNK = 64
 """Query views per scoring task (and per GCN prediction call): a fixed cut, so the scores
@@ -319,7 +322,8 @@ class Trained:
     """A trained variant, as its folder holds it: what a scoring task needs to score with it.
 
     Attributes:
-        folder: ``gcn.pt``, ``descriptor.npz`` (the descriptor's fitted state),
+        folder: the classifier (``gcn.pt``, or ``matcher.npz`` for graph matching),
+            ``descriptor.npz`` (the descriptor's fitted state),
             ``nearest.npz`` (the training graphs' whole-image features and classes, for
             the nearest-neighbour reference) and ``training.json`` (the classifier's
             training record, with the variant's ``key``).
@@ -369,13 +373,32 @@ def train_variant_in(
     synthesizes = bound.synthesizer is not None
     groups = plan.groups(len(graphs) - (len(plan.pseudo) if synthesizes else 0), synthesizes)
     with timings.phase("train"):
-        model, report = train_gcn(graphs, np.array(labels), dataset.num_classes, training, groups=groups)
-    save_gcn(model, folder / "gcn.pt")
+        fitted = _fit_classifier(graphs, labels, groups, dataset.num_classes, training, folder)
     atomic_write_bytes(folder / "descriptor.npz", npz_bytes(fitted_state(bound.descriptor)))
     atomic_write_bytes(folder / "nearest.npz", npz_bytes({"features": whole_image_features(graphs), "labels": np.asarray(labels, np.int64)}))
-    record = {"key": key, "label": bound.label, "graphs": len(graphs), **asdict(report)}
+    record = {"key": key, "label": bound.label, "graphs": len(graphs), "classifier": training.classifier, **fitted}
     write_json(folder / "training.json", record)  # last: the folder is a trained variant once it is there
     return Trained(rv, str(folder), key, record)
+
+
+def _fit_classifier(
+    graphs: Sequence[SceneGraph], labels: Sequence[int], groups: np.ndarray, num_classes: int, training: TrainingConfig, folder: Path
+) -> dict[str, Any]:
+    """Fit the variant's classifier (``training.classifier``) and save it in ``folder``; returns its training record."""
+    if training.classifier == "graph-match":
+        matcher = GraphMatcher.of(graphs, labels, num_classes, training.match_whole)
+        atomic_write_bytes(folder / CLASSIFIER_FILES["graph-match"], npz_bytes(matcher.state_dict()))
+        return {"match_whole": training.match_whole}
+    model, report = train_gcn(graphs, np.array(labels), num_classes, training, groups=groups)
+    save_gcn(model, folder / CLASSIFIER_FILES["gcn"])
+    return asdict(report)
+
+
+def _load_classifier(folder: Path, kind: str) -> Any:
+    """The classifier :func:`_fit_classifier` saved: anything with ``predict(graphs) -> (graphs, classes)``."""
+    if kind == "graph-match":
+        return GraphMatcher.from_state(load_npz(folder / CLASSIFIER_FILES[kind]))
+    return load_gcn(folder / CLASSIFIER_FILES["gcn"])
 
 
 def _trained(rv: ResolvedVariant, folder: Path, key: str) -> Trained | None:
@@ -383,9 +406,10 @@ def _trained(rv: ResolvedVariant, folder: Path, key: str) -> Trained | None:
         record = read_json(folder / "training.json") if (folder / "training.json").exists() else None
     except SsgaError:
         return None
-    if not isinstance(record, dict) or record.get("key") != key or not all((folder / f).exists() for f in _TRAINED):
+    if not isinstance(record, dict) or record.get("key") != key:
         return None
-    return Trained(rv, str(folder), key, record)
+    files = (*_TRAINED, CLASSIFIER_FILES.get(record.get("classifier", "gcn"), "?"))
+    return Trained(rv, str(folder), key, record) if all((folder / f).exists() for f in files) else None
 
 
 def fitted_state(descriptor: Descriptor) -> dict[str, np.ndarray]:
@@ -543,7 +567,8 @@ def _open_trained(trained: Trained, timings: Timings) -> _Scorer:
     bound.descriptor.load_state_dict(load_npz(folder / "descriptor.npz"))
     nearest = load_npz(folder / "nearest.npz")
     instrument(bound, timings)
-    return _Scorer(bound, load_gcn(folder / "gcn.pt"), nearest["features"], nearest["labels"])
+    model = _load_classifier(folder, trained.training.get("classifier", "gcn"))
+    return _Scorer(bound, model, nearest["features"], nearest["labels"])
 
 
 def score_chunk(job: ScoreJob) -> ChunkScores:

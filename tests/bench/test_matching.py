@@ -1,0 +1,80 @@
+"""The nearest-graph classifier: whole image and parts matched part to part."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from ssga_bench.matching import GraphMatcher
+from ssga_core import InputError
+from ssga_core.data import SceneGraph
+
+
+def graph(*nodes) -> SceneGraph:
+    """A graph of the given node features (the whole image first)."""
+    features = np.asarray(nodes, dtype=np.float32)
+    n = len(features)
+    return SceneGraph(
+        boxes=np.zeros((n, 4), np.float32), features=features, weights=np.ones(n, np.float32), edges=np.zeros((0, 2), np.int64)
+    )
+
+
+def unit(x):
+    x = np.asarray(x, dtype=np.float64)
+    return x / np.linalg.norm(x)
+
+
+def naive_similarity(query: SceneGraph, train: SceneGraph, whole_weight: float) -> float:
+    """The docstring's rule, one pair at a time."""
+    whole = float(unit(query.features[0]) @ unit(train.features[0]))
+    if query.num_parts == 0 or train.num_parts == 0:
+        return whole
+    pairs = np.array([[unit(a) @ unit(b) for b in train.features[1:]] for a in query.features[1:]])
+    parts = (pairs.max(axis=1).mean() + pairs.max(axis=0).mean()) / 2
+    return whole_weight * whole + (1 - whole_weight) * parts
+
+
+def test_similarities_are_the_rule_written_out():
+    rng = np.random.default_rng(3)
+    train = [graph(*rng.random((1 + k, 6))) for k in (3, 0, 5, 1, 2)]
+    queries = [graph(*rng.random((1 + k, 6))) for k in (4, 0, 2)]
+    matcher = GraphMatcher.of(train, [0, 1, 1, 2, 0], num_classes=4, whole_weight=0.3)
+    for q in queries:
+        expected = [naive_similarity(q, t, 0.3) for t in train]
+        np.testing.assert_allclose(matcher.similarities(q), expected, rtol=1e-5, atol=1e-6)
+    # A class scores its best training graph; a class without one scores below every other.
+    sims = matcher.class_similarities(queries)
+    every = np.stack([matcher.similarities(q) for q in queries])
+    np.testing.assert_allclose(sims[:, 0], every[:, [0, 4]].max(axis=1), rtol=1e-6)
+    np.testing.assert_allclose(sims[:, 1], every[:, [1, 2]].max(axis=1), rtol=1e-6)
+    assert (sims[:, 3] < sims[:, :3].min(axis=1)).all()
+    probs = matcher.predict(queries)
+    np.testing.assert_allclose(probs.sum(axis=1), 1.0, rtol=1e-5)
+    assert (probs.argmax(axis=1) == sims.argmax(axis=1)).all()
+
+
+def test_parts_decide_where_the_whole_images_tie():
+    # Two places whose whole images look alike; their parts differ (a bed, a desk).
+    whole, bed, desk, wall = [1, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1], [1, 0, 0, 0]
+    matcher = GraphMatcher.of([graph(whole, bed, wall), graph(whole, desk, wall)], [0, 1], num_classes=2, whole_weight=0.5)
+    seen_bed = graph([1, 1, 0.1, 0], bed)  # a new view: the bed is still in it, the wall left the frame
+    assert matcher.predict([seen_bed]).argmax() == 0
+    whole_only = GraphMatcher.of([graph(whole, bed, wall), graph(whole, desk, wall)], [0, 1], num_classes=2, whole_weight=1.0)
+    sims = whole_only.class_similarities([seen_bed])[0]
+    assert sims[0] == pytest.approx(sims[1])  # the whole image alone cannot tell them apart
+
+
+def test_the_saved_state_scores_the_same_and_a_broken_one_is_refused():
+    rng = np.random.default_rng(0)
+    train = [graph(*rng.random((1 + k, 5))) for k in (2, 3, 0)]
+    matcher = GraphMatcher.of(train, [2, 0, 1], num_classes=3, whole_weight=0.25)
+    query = [graph(*rng.random((4, 5)))]
+    again = GraphMatcher.from_state(matcher.state_dict())
+    np.testing.assert_array_equal(again.predict(query), matcher.predict(query))
+    state = matcher.state_dict()
+    with pytest.raises(InputError, match="saved state without 'node_ptr'"):
+        GraphMatcher.from_state({k: v for k, v in state.items() if k != "node_ptr"})
+    with pytest.raises(InputError, match="do not fit together"):
+        GraphMatcher.from_state({**state, "node_ptr": state["node_ptr"][:-1]})
+    with pytest.raises(InputError, match="classes in 0..2"):
+        GraphMatcher.from_state({**state, "labels": np.array([0, 1, 5])})
