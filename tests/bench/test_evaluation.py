@@ -178,8 +178,8 @@ def test_bench_summary_over_seeds():
         variants, best = {"good": good, "noise": noise}, ["good", "noise"][seed]
         nn = f"nearest neighbour ({best})"
         report = Report.build(
-            "ws", variants, truth, groups=groups, num_classes=10, ensemble=("E", good + noise), best_single=best,
-            references={nn: good}, series={nn: "nearest neighbour (best single)"},
+            "ws", variants, truth, groups=groups, num_classes=10, ensemble=(f"E of {best}", good + noise), best_single=best,
+            references={nn: good}, series={nn: "nearest neighbour (best single)", f"E of {best}": "E chosen on validation"},
         )  # fmt: skip
         runs[seed] = SeedRun(report, {"train": 1.0 + seed, "describe": 4.0}, 10.0, {"variants": 6.0}, {"describe": 80})
     md = bench_summary(runs)
@@ -188,6 +188,7 @@ def test_bench_summary_over_seeds():
     mean = mean_interval(np.array([runs[s].report.table["good"]["L1"]["top1"] for s in (0, 1)]))
     assert f"| good | {mean.text()} |" in md and "t-interval across seeds" in md
     assert "| best single (validation) |" in md  # one row, whichever variant each seed chose
+    assert "E chosen on validation" in md and "E of good" not in md  # so is an ensemble whose members were chosen
     assert "| 0 | 40 | 40 | 40 | 60 | 60 | 120 |" in md
     assert "seed 1 L3" in md and "| noise | +" in md
     assert "| variants | 6.0 | 6.0 | 60.0 |" in md and "| train | 1.0 | 2.0 |" in md

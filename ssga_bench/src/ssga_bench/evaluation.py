@@ -276,8 +276,8 @@ class Report:
                 every scored row whose all-views MRR interval holds the random MRR.
             not_run: variants without scores (their weights are missing) and why; each
                 is listed in the tables as not run.
-            series: for reference rows whose label depends on what was chosen on this
-                seed's data, the name that joins them across seeds.
+            series: for the ensemble and reference rows whose label depends on what was
+                chosen on this seed's data, the name that joins them across seeds.
         """
         references, flags = dict(references or {}), dict(flags or {})
         truth = np.asarray(truth)
@@ -310,7 +310,9 @@ class Report:
             at_chance = (AT_CHANCE,) if stats[of]["all"]["mrr"].contains(chance["mrr"]) else ()
             return Row(label, kind, stats[of], tuple(f for f in (flags.get(of),) if f) + at_chance, source)
 
-        rows = [row(v, "variant") for v in variant_scores] + [row(ens_label, "ensemble")]
+        # The ensemble's label names its members where they were chosen on this seed's
+        # validation views: its series joins it across seeds, as for the references.
+        rows = [row(v, "variant") for v in variant_scores] + [dataclasses.replace(row(ens_label, "ensemble"), series=(series or {}).get(ens_label))]
         if best_single is not None:
             rows.append(row(f"best single ({best_single_basis}): {best_single}", "best single", best_single))
         rows += [dataclasses.replace(row(r, "reference"), series=(series or {}).get(r)) for r in references]

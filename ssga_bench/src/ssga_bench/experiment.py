@@ -918,7 +918,7 @@ def run_experiment(
             references=references,
             flags=flags,
             not_run=not_run,
-            series={label: name for label, name in series.items() if label in references},
+            series={label: name for label, name in series.items() if label in references or label == ensemble[0]},
         )
     with timings.phase("report"), timings.wall_phase("report"):
         atomic_write_bytes(out / "report.md", report.markdown().encode())
