@@ -8,7 +8,8 @@ For each variant:
    (:func:`ssga_core.pipeline.training_graphs`) fits the descriptor and builds the
    graphs as the variant's order says, synthesizing or not. The runner never branches
    on the order and never calls a stage itself.
-2. **Train** the variant's GCN (one task per variant, :func:`train_variant`), then
+2. **Train** the variant's classifier, the GCN or graph matching (one task per variant,
+   :func:`train_variant`), then
    **score** every test and validation view (the query path,
    :func:`ssga_core.pipeline.build_graph`) in chunks, each chunk through every trained
    variant (:func:`score_chunk`).
@@ -16,7 +17,7 @@ For each variant:
 Then the fuser combines the variants' class probabilities and every row is evaluated
 per difficulty level (:mod:`ssga_bench.evaluation`).
 
-Outputs in the experiment folder: ``variants/<label>/`` (``gcn.pt``,
+Outputs in the experiment folder: ``variants/<label>/`` (``gcn.pt`` or ``matcher.npz``,
 ``descriptor.npz``, ``nearest.npz``, ``training.json``, ``scores.npy``...),
 ``report.md``, ``results.csv``, ``results.png``, ``timings.json``. Each variant's
 outputs are keyed by a hash of everything they depend on, so a rerun skips finished
