@@ -53,3 +53,23 @@ def test_unknown_rows_and_folders_are_one_line_errors(tmp_path):
     assert result.exit_code == 1 and "expected the output folder of `ssga run` or `ssga bench`" in result.output
     result = runner.invoke(app_with_plugin_commands(), ["compare", str(tmp_path / "run"), "A", "B", "--out", str(tmp_path / "c.md")])
     assert result.exit_code == 0 and (tmp_path / "c.md").read_text() == result.output
+
+
+def test_row_b_may_come_from_another_run_of_the_same_views(tmp_path):
+    # Two configs of one bench: the same row of each, paired view by view.
+    write_run(tmp_path / "gcn" / "seed-2", [2, 2, 1], [9, 9, 9], [1, 1, 2])
+    write_run(tmp_path / "match" / "seed-2", [9, 9, 9], [1, 2, 1], [1, 1, 2])
+    text = compare(tmp_path / "gcn", "A", "B", metrics=("mrr",), b_output=tmp_path / "match")
+    assert text.startswith(f"# B of {tmp_path / 'match'} − A of {tmp_path / 'gcn'}")
+    assert "| seed 2 | +25.0 ±" in text  # L1: (1 - 1/2) and (1/2 - 1/2), in percent, averaged
+    result = CliRunner().invoke(
+        app_with_plugin_commands(), ["compare", str(tmp_path / "gcn"), "A", "B", "--b-from", str(tmp_path / "match")]
+    )
+    assert result.exit_code == 0 and result.output == compare(tmp_path / "gcn", "A", "B", b_output=tmp_path / "match")
+    # Other test views, or other seeds: refused in one line.
+    write_run(tmp_path / "other" / "seed-2", [1, 1], [1, 1], [1, 1])
+    with pytest.raises(InputError, match="other test views than"):
+        compare(tmp_path / "gcn", "A", "B", b_output=tmp_path / "other")
+    write_run(tmp_path / "seeds" / "seed-3", [1, 1, 1], [1, 1, 1], [1, 1, 2])
+    with pytest.raises(InputError, match="holds seed 3, .* holds seed 2; compare outputs of the same seeds"):
+        compare(tmp_path / "gcn", "A", "B", b_output=tmp_path / "seeds")

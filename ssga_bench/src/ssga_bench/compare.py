@@ -1,4 +1,4 @@
-"""Two rows of one run, paired on the same test views: did swapping a stage help?
+"""Two rows, paired on the same test views: did swapping a stage (or a config) help?
 
 Each row of a report (a variant, the ensemble, a reference) ranks the same test views.
 Row B minus row A, view by view, is a paired difference: its t-interval is far
@@ -7,7 +7,9 @@ hard for both. Per seed of a bench run, and the mean of the seeds' differences w
 t-interval across seeds (what a rerun on other homes would see).
 
 Reads ``predictions.jsonl`` (written by ``ssga run``), or ``seed-*/predictions.jsonl``
-(``ssga bench``).
+(``ssga bench``). Row B may come from another output folder of the same seeds and test
+views (``b_output``): two configs compared view by view, e.g. the GCN against graph
+matching.
 """
 
 from __future__ import annotations
@@ -32,25 +34,39 @@ def prediction_files(output: Path) -> dict[str, Path]:
     return {p.parent.name.replace("-", " "): p for p in seeds}
 
 
-def paired_differences(records: list[dict[str, Any]], a: str, b: str, metric: str, where: str) -> dict[str, Estimate]:
-    """Per level group, ``metric(b) - metric(a)`` over the views both rows ranked, with its paired interval."""
-    rows = records[0]["rows"] if records else {}
-    for label in (a, b):
+def paired_differences(
+    records: list[dict[str, Any]], a: str, b: str, metric: str, where: str, records_b: list[dict[str, Any]] | None = None, where_b: str = ""
+) -> dict[str, Estimate]:
+    """Per level group, ``metric(b) - metric(a)`` over the views both rows ranked, with its paired
+    interval; row ``b`` from ``records_b`` (another run of the same test views) if given."""
+    records_b, where_b = (records, where) if records_b is None else (records_b, where_b)
+    for label, recs, source in ((a, records, where), (b, records_b, where_b)):
+        rows = recs[0]["rows"] if recs else {}
         if label not in rows:
-            raise InputError(f"{where}: no row {label!r}; the rows are: {', '.join(map(repr, rows))}")
-    diff = per_query(np.array([r["rows"][b]["rank"] for r in records]), metric) - per_query(np.array([r["rows"][a]["rank"] for r in records]), metric)
+            raise InputError(f"{source}: no row {label!r}; the rows are: {', '.join(map(repr, rows))}")
+    if [r["id"] for r in records] != [r["id"] for r in records_b]:
+        raise InputError(f"{where_b}: other test views than {where}; compare outputs of the same seeds and protocol")
+    diff = per_query(np.array([r["rows"][b]["rank"] for r in records_b]), metric) - per_query(np.array([r["rows"][a]["rank"] for r in records]), metric)
     level = np.array([r["level"] for r in records])
     return {g: mean_interval(diff if g == "all" else diff[level == int(g[1])]) for g in LEVELS}
 
 
-def compare(output: Path, a: str, b: str, metrics: tuple[str, ...] = METRICS) -> str:
-    """Markdown: for each metric, row ``b`` minus row ``a`` per seed and level, and the mean over seeds."""
+def compare(output: Path, a: str, b: str, metrics: tuple[str, ...] = METRICS, b_output: Path | None = None) -> str:
+    """Markdown: for each metric, row ``b`` (of ``b_output`` if given) minus row ``a`` per seed and level, and the mean over seeds."""
     files = prediction_files(output)
+    files_b = prediction_files(b_output) if b_output is not None else files
+    if set(files_b) != set(files):
+        raise InputError(f"{b_output}: holds {', '.join(files_b)}, {output} holds {', '.join(files)}; compare outputs of the same seeds")
     per_seed = {name: load_predictions(path) for name, path in files.items()}
-    lines = [f"# {b} − {a}", "", f"Paired on the same test views of {output}; percentage points, ± half the 95% interval.", ""]
+    per_seed_b = {name: load_predictions(path) for name, path in files_b.items()} if b_output is not None else per_seed
+    head = f"{b} of {b_output} − {a} of {output}" if b_output is not None else f"{b} − {a}"
+    lines = [f"# {head}", "", f"Paired on the same test views of {output}; percentage points, ± half the 95% interval.", ""]
     for metric in metrics:
         lines += [f"## {METRIC_TITLES[metric]}", "", "| | " + " | ".join(LEVELS) + " |", "|---|" + "---:|" * len(LEVELS)]
-        by_seed = {name: paired_differences(records, a, b, metric, str(files[name])) for name, records in per_seed.items()}
+        by_seed = {
+            name: paired_differences(records, a, b, metric, str(files[name]), per_seed_b[name], str(files_b[name]))
+            for name, records in per_seed.items()
+        }
         for name, diffs in by_seed.items():
             lines.append(f"| {name} | " + " | ".join(f"{difference_text(diffs[g])} (n {diffs[g].n})" for g in LEVELS) + " |")
         if len(by_seed) > 1:

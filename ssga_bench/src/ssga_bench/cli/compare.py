@@ -15,12 +15,20 @@ def compare_cli(
     a: Annotated[str, typer.Argument(metavar="A", help="The row subtracted, as the report labels it, e.g. 'SIFT-SL (PSD)'.")],
     b: Annotated[str, typer.Argument(metavar="B", help="The row it is subtracted from, e.g. 'SIFT-SE (PSD)'.")],
     out: Annotated[Path | None, typer.Option(metavar="FILE.md", help="Also write the tables to this file.")] = None,
+    b_from: Annotated[
+        Path | None,
+        typer.Option(
+            "--b-from",
+            metavar="OUTPUT",
+            help="Take row B from this other output folder (the same seeds and test views): two configs compared view by view.",
+        ),
+    ] = None,
 ) -> None:
     """Row B minus row A per difficulty level, paired view by view (per seed, and the mean over seeds): did a swapped stage help?"""
     from ssga_bench.compare import compare
     from ssga_bench.io import atomic_write_bytes
 
-    text = compare(output, a, b)
+    text = compare(output, a, b, b_output=b_from)
     if out is not None:
         atomic_write_bytes(out, text.encode())
     typer.echo(text, nl=False)
