@@ -529,6 +529,7 @@ class ScoreJob:
     Attributes:
         ids: the views' sample ids, in the split's order.
         nearest: also score the nearest-neighbour reference (the test views).
+        identity: the dataset's :func:`dataset_identity` (hashed once, by the driver).
     """
 
     dataset: str
@@ -537,6 +538,7 @@ class ScoreJob:
     variants: tuple[Trained, ...]
     cache: str
     nearest: bool
+    identity: str
 
     def what(self) -> str:
         return f"scoring {span('view', self.ids)} ({self.split})"
@@ -583,13 +585,14 @@ def score_chunk(job: ScoreJob) -> ChunkScores:
 
     dataset = opened_dataset(job.dataset)
     cache = memo(("feature cache", job.cache), lambda: FeatureCache(job.cache))
-    keys = memo(("view keys", job.cache, dataset_identity(dataset)), lambda: cache.view_keys(dataset_identity(dataset)))
+    keys = memo(("view keys", job.cache, job.identity), lambda: cache.view_keys(job.identity))
+
+    # The variants are opened once per worker, instrumented with one timings object that
+    # each chunk empties and sends back.
     def open_all() -> tuple[Timings, list[_Scorer]]:
         timings = Timings()
         return timings, [_open_trained(t, timings) for t in job.variants]
 
-    # The variants are opened once per worker, instrumented with one timings object that
-    # each chunk empties and sends back.
     timings, scorers = memo(("trained variants", tuple((t.folder, t.key) for t in job.variants)), open_all)
     timings.clear()
     channels = set().union(*(query_channels(s.bound) for s in scorers))
@@ -633,11 +636,12 @@ def score_queries(
     digest = hashlib.blake2b(json.dumps([t.key for t in trained]).encode(), digest_size=8).hexdigest()
     folder = out / "scoring" / digest
     root, cache_folder = str(dataset.root.resolve()), str(cache.root.resolve())  # type: ignore[union-attr]
+    identity = dataset_identity(dataset)
     jobs: list[tuple[str, int, ScoreJob]] = []
     for split in ("test", "val"):
         ids = [s.id for s in dataset.split(split)]
         for i, chunk in enumerate(chunks(ids, SCORE_CHUNK)):
-            jobs.append((split, i, ScoreJob(root, split, chunk, tuple(trained), cache_folder, split == "test")))
+            jobs.append((split, i, ScoreJob(root, split, chunk, tuple(trained), cache_folder, split == "test", identity)))
 
     def chunk_file(split: str, i: int) -> Path:
         return folder / f"{split}-{i:06d}.npz"
