@@ -31,7 +31,6 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import hashlib
-import io
 import json
 import math
 import re
@@ -45,13 +44,14 @@ from typing import Any
 
 import numpy as np
 
+from ssga_bench.bow import normalise_rows
 from ssga_bench.cache import FeatureCache, stage_key
 from ssga_bench.config import Experiment, TrainingConfig
 from ssga_bench.dataset import Dataset, build_workspace
 from ssga_bench.evaluation import Report, truth_ranks
 from ssga_bench.execution import Executor, memo, open_executor
 from ssga_bench.gcn import load_gcn, save_gcn, train_gcn
-from ssga_bench.io import atomic_write_bytes, load_npy, load_npz, npy_bytes, read_json, warn, writable_folder, write_json
+from ssga_bench.io import atomic_write_bytes, load_npy, load_npz, npy_bytes, npz_bytes, read_json, warn, writable_folder, write_json
 from ssga_bench.matching import GraphMatcher
 from ssga_bench.oracle import TrueRender
 from ssga_bench.protocol import Protocol, Sample
@@ -424,16 +424,10 @@ def fitted_state(descriptor: Descriptor) -> dict[str, np.ndarray]:
     return state
 
 
-def npz_bytes(arrays: Mapping[str, np.ndarray]) -> bytes:
-    buffer = io.BytesIO()
-    np.savez(buffer, **arrays)
-    return buffer.getvalue()
-
-
 def whole_image_features(graphs: Sequence[SceneGraph]) -> np.ndarray:
     """``(graphs, dim)``: each graph's whole-image node feature, scaled to unit length."""
     x = np.stack([g.features[0] for g in graphs]).astype(np.float32) if graphs else np.zeros((0, 1), np.float32)
-    return x / np.maximum(np.linalg.norm(x, axis=1, keepdims=True), 1e-12)
+    return normalise_rows(x, "l2")
 
 
 def nearest_neighbour_scores(train: np.ndarray, labels: np.ndarray, queries: Sequence[SceneGraph], num_classes: int) -> np.ndarray:

@@ -98,6 +98,13 @@ def npy_bytes(array: np.ndarray) -> bytes:
     return out.getvalue()
 
 
+def npz_bytes(arrays: dict[str, np.ndarray]) -> bytes:
+    """Named arrays as an ``.npz`` file holds them (uncompressed)."""
+    out = io.BytesIO()
+    np.savez(out, **arrays)
+    return out.getvalue()
+
+
 def load_npz(path: str | Path) -> dict[str, np.ndarray]:
     """Every array of an ``.npz`` file ssga wrote; a damaged or missing one is a one-line error."""
     try:

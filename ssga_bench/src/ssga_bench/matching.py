@@ -24,6 +24,7 @@ from collections.abc import Mapping, Sequence
 
 import numpy as np
 
+from ssga_bench.bow import normalise_rows
 from ssga_core.data import SceneGraph
 from ssga_core.errors import InputError
 
@@ -32,7 +33,7 @@ TEMPERATURE = 0.05
 
 
 def _unit(x: np.ndarray) -> np.ndarray:
-    return (x / np.maximum(np.linalg.norm(x, axis=-1, keepdims=True), 1e-12)).astype(np.float32)
+    return normalise_rows(np.asarray(x, np.float32), "l2")
 
 
 class GraphMatcher:
