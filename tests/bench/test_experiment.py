@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 
 import numpy as np
 import pytest
@@ -229,3 +230,63 @@ def test_graph_matching_classifies_without_training_a_network(tmp_path, dataset,
     assert set(report.variants) == {"PC-ST (PDS)", "PC-ST (PD)", "PC (SD)"}
     again, _ = run_experiment(exp, dataset, tmp_path)  # finished: read back
     assert again.markdown() == report.markdown()
+
+
+def test_a_fusion_learned_on_validation_is_reported_beside_the_papers(tmp_path, stand_in_registry):
+    from ssga_fuser_stacking.plugin import Stacking
+
+    from ssga_bench.evaluation import truth_ranks
+
+    validated = build_dataset(
+        WallWorkspaceSource().open(), tmp_path / "ds", source={"name": "test-wall"}, protocol=ProtocolConfig(cells=2, test_per_class=2, val_per_class=2, seed=4)
+    )
+    exp = validate_experiment(
+        {
+            "workspace": {"name": "test-wall"},
+            "stages": {"parser": {"name": "test-stripes"}, "descriptor": {"name": "test-patch-colour"}, "synthesizer": {"name": "test-shift"}},
+            "variants": ["PDS", "PD", "SD"],
+            "protocol": {"val_per_class": 2},
+            "training": {"classifier": "graph-match"},
+            "ensemble": {"also": [{"name": "stacking"}]},
+        },
+        stand_in_registry,
+    )
+    report, _ = run_experiment(exp, validated, tmp_path / "out")
+    row = "Ensemble (STK) of all, learned on validation"
+    assert row in report.rows and row in report.markdown()
+    assert "Ensemble (RRF)" in report.rows  # the paper's fusion stays the ensemble row
+    learned = json.loads((tmp_path / "out" / "fusion.json").read_text())["Ensemble (STK)"]
+    assert learned["members"] == ["PC-ST (PDS)", "PC-ST (PD)", "PC (SD)"]
+
+    # The row is the rule fitted on the validation views' scores, fusing the test views'.
+    folders = ["PC-ST_PDS", "PC-ST_PD", "PC_SD"]
+    val = np.stack([np.load(tmp_path / "out" / "variants" / f / "val_scores.npy") for f in folders])
+    test = np.stack([np.load(tmp_path / "out" / "variants" / f / "scores.npy") for f in folders])
+    by_hand = Stacking()
+    by_hand.fit(val, np.array([s.place for s in validated.split("val")]))
+    np.testing.assert_allclose(by_hand.weights, learned["weights"], atol=1e-6)
+    truth = np.array([s.place for s in validated.split("test")])
+    np.testing.assert_array_equal(report.true_ranks[row], truth_ranks(by_hand.fuse(test), truth))
+
+    # Without the learned rule, a rerun leaves no stale weights behind.
+    plain = validate_experiment({**exp.config.model_dump(mode="json", exclude={"ensemble"}), "output": str(tmp_path / "out")}, stand_in_registry)
+    again, _ = run_experiment(plain, validated, tmp_path / "out")
+    assert row not in again.rows and not (tmp_path / "out" / "fusion.json").exists()
+
+
+@pytest.mark.parametrize(
+    ("config", "problem"),
+    [
+        ({"ensemble": {"also": [{"name": "stacking"}]}}, "ensemble.also.0: fuser 'stacking' is learned on the validation views; set protocol.val_per_class > 0"),
+        ({"fuser": {"name": "stacking"}}, "fuser: fuser 'stacking' is learned on the validation views"),
+        (
+            {"fuser": {"name": "stacking"}, "protocol": {"val_per_class": 1}, "ensemble": {"members": "validation"}},
+            "ensemble.members: fuser 'stacking' weighs its members itself",
+        ),
+    ],
+)
+def test_a_learned_fusion_without_validation_views_is_refused_before_anything_runs(stand_in_registry, config, problem):
+    from ssga_core import ConfigError
+
+    with pytest.raises(ConfigError, match=re.escape(problem)):
+        validate_experiment({"workspace": {"name": "test-wall"}, "variants": ["SD"], **config}, stand_in_registry)

@@ -25,7 +25,7 @@ non-finite floats are refused.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
 from typing import Any, Literal
@@ -141,6 +141,12 @@ class EnsembleConfig(Strict):
         "where the workspace renders any pose. SD describes the whole true render; DS only what the landmark saw of it.",
     )
     queries_to_draw: int = Field(default=10, ge=0, le=10_000, description="Pictures of sample queries beside their classes' views.")
+    also: list[FuserRef] = Field(  # type: ignore[valid-type]
+        default_factory=list,
+        max_length=8,
+        description="More fusion rules reported beside the ensemble, each over every variant, e.g. [{ name = 'stacking' }]: "
+        "a rule learned on the validation views (needs protocol.val_per_class > 0) beside the paper's reciprocal-rank fusion.",
+    )
 
 
 class ExperimentConfig(VariantsConfig):
@@ -170,6 +176,8 @@ class Experiment:
     workspace: ResolvedStage
     variants: list[ResolvedVariant]
     fuser: ResolvedStage
+    also: list[ResolvedStage] = field(default_factory=list)
+    """The fusers reported beside the ensemble (``ensemble.also``)."""
     source: str = "<config>"
     base_dir: Path | None = None
     """The folder relative paths of the config were taken from (the config file's)."""
@@ -249,13 +257,29 @@ def validate_experiment(data: dict[str, Any], registry: Registry, *, source: str
         if config.fuser is not None
         else packaged.stage(FuserRef.model_validate(defaults["fuser"]), "fuser", ("defaults.toml", "fuser"))
     )
+    also = [resolver.stage(ref, "fuser", ("ensemble", "also", i)) for i, ref in enumerate(config.ensemble.also)]
     resolver.problems.extend(packaged.problems)
+    resolver.problems.extend(_fusion_problems(config, fuser, also))
     if workspace is not None:
         resolver.problems.extend(f"workspace.{problem}" for problem in workspace.cls.missing(workspace.config))
     variants = resolver.variants(config, available=workspace.cls.carries(workspace.config) if workspace else None)
     resolver.raise_problems(source)
     assert workspace is not None and fuser is not None
-    return Experiment(config=config, workspace=workspace, variants=variants, fuser=fuser, source=source, base_dir=base_dir)
+    return Experiment(
+        config=config, workspace=workspace, variants=variants, fuser=fuser, also=[f for f in also if f is not None], source=source, base_dir=base_dir
+    )
+
+
+def _fusion_problems(config: ExperimentConfig, fuser: ResolvedStage | None, also: list[ResolvedStage | None]) -> list[str]:
+    """A fuser learned on validation views without any, or members chosen for one that weighs its own."""
+    problems = []
+    named = [("fuser", fuser)] + [(f"ensemble.also.{i}", f) for i, f in enumerate(also)]
+    for at, stage in named:
+        if stage is not None and getattr(stage.cls, "learns", False) and config.protocol.val_per_class == 0:
+            problems.append(f"{at}: fuser {stage.name!r} is learned on the validation views; set protocol.val_per_class > 0")
+    if fuser is not None and getattr(fuser.cls, "learns", False) and config.ensemble.members == "validation":
+        problems.append(f"ensemble.members: fuser {fuser.name!r} weighs its members itself; members = 'validation' is for a rule that does not learn, use 'all'")
+    return problems
 
 
 def experiment_schema(registry: Registry) -> dict[str, Any]:

@@ -876,25 +876,49 @@ def run_experiment(
     references: dict[str, np.ndarray] = {}
     best_single = None
     chosen = labels
+    learned: dict[str, Any] = {}
+
+    def fused(rule: Fuser, members: list[str]) -> np.ndarray:
+        """The test views' fused scores; a learned rule is first fitted on the validation views."""
+        if rule.learns:
+            if not len(vals):
+                raise SsgaError(f"fuser {rule.name!r} is learned on the validation views, but the workspace has none (protocol.val_per_class)")
+            rule.fit(np.stack([results[label].val for label in members]), val_truth)
+            learned[f"Ensemble ({rule.tag()})"] = {"members": members, **rule.learned()}
+        return rule.fuse(np.stack([results[label].test for label in members]))
+
     if len(vals):
         val_scores = {label: results[label].val for label in labels}
         best_single = max(labels, key=lambda label: float(np.mean(1.0 / truth_ranks(val_scores[label], val_truth))))
-        chosen = choose_members(val_scores, val_truth, fuser)
+        if not fuser.learns:  # a learned rule weighs its members itself (config validation says so)
+            chosen = choose_members(val_scores, val_truth, fuser)
     ensemble_label = f"Ensemble ({fuser.tag()})"
     with timings.phase("evaluate"):
-        fused_all = fuser.fuse(np.stack([results[label].test for label in labels]))
-        fused_chosen = fuser.fuse(np.stack([results[label].test for label in chosen]))
+        fused_all = fused(fuser, labels)
+        fused_chosen = fuser.fuse(np.stack([results[label].test for label in chosen])) if chosen != labels else fused_all
     selected_label = f"Ensemble ({fuser.tag()}) of {len(chosen)} chosen on validation: " + ", ".join(chosen)
+    series = {selected_label: f"Ensemble ({fuser.tag()}) chosen on validation"}
     if config.ensemble.members == "validation" and len(vals):
         ensemble = (selected_label, fused_chosen)
         references[ensemble_label + " of all"] = fused_all
     else:
         ensemble = (ensemble_label, fused_all)
-        if len(vals):
+        if len(vals) and not fuser.learns:
             references[selected_label] = fused_chosen
+    for also in experiment.also:
+        rule = also.create()
+        assert isinstance(rule, Fuser)
+        with timings.phase("evaluate"):
+            label = f"Ensemble ({rule.tag()}) of all" + (", learned on validation" if rule.learns else "")
+            references[label] = fused(rule, labels)
+        series[label] = f"Ensemble ({rule.tag()})"
+    if learned:
+        write_json(out / "fusion.json", learned)
+    else:  # a rerun with no learned rule leaves no stale weights
+        (out / "fusion.json").unlink(missing_ok=True)
     reference_variant = best_single or labels[0]
     references[f"nearest neighbour ({reference_variant})"] = results[reference_variant].nearest
-    series = {selected_label: f"Ensemble ({fuser.tag()}) chosen on validation", f"nearest neighbour ({reference_variant})": "nearest neighbour (best single)"}
+    series[f"nearest neighbour ({reference_variant})"] = "nearest neighbour (best single)"
 
     for label in labels:  # the config's order, whichever finished first
         if label in oracle_results:

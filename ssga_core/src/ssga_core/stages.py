@@ -314,13 +314,29 @@ class Fuser(Stage):
     """Late fusion of the class scores of several variants into one ranking."""
 
     kind = "fuser"
+    learns: ClassVar[bool] = False
+    """Whether the rule is learned from the validation views (:meth:`fit`) before it fuses;
+    a rank or probability rule is not. A learning fuser needs a validation split."""
+
+    def fit(self, scores: np.ndarray, truth: np.ndarray) -> None:
+        """Learn the rule from the validation views: ``(V, Q, C)`` scores of the same variants,
+        in the same order, that :meth:`fuse` will be given, and ``(Q,)`` true classes.
+        Called once per experiment, only where :attr:`learns`; the default learns nothing."""
+
+    def learned(self) -> dict[str, Any]:
+        """What :meth:`fit` learned, as JSON (weights per member): recorded beside the report. Default: nothing."""
+        return {}
 
     def fuse(self, scores: np.ndarray) -> np.ndarray:
         """Fuse ``(V, Q, C)`` scores (V variants, Q queries, C classes; higher is better) into ``(Q, C)``."""
+        return self._fuse(self.checked_scores(scores))
+
+    def checked_scores(self, scores: np.ndarray) -> np.ndarray:
+        """``scores`` as float64 ``(V, Q, C)``, or a one-line :class:`InputError` naming the shape."""
         scores = np.asarray(scores, dtype=np.float64)
         if scores.ndim != 3 or 0 in scores.shape:
             raise InputError(f"fuser {self.name!r}: expected non-empty (variants, queries, classes) scores, got shape {scores.shape}")
-        return self._fuse(scores)
+        return scores
 
     @abstractmethod
     def _fuse(self, scores: np.ndarray) -> np.ndarray: ...

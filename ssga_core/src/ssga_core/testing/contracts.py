@@ -86,13 +86,25 @@ def check_synthesizer(synthesizer: Synthesizer, view: View | None = None) -> Non
 
 
 def check_fuser(fuser: Fuser, seed: int = 0) -> None:
-    """One variant keeps its own ranking; the order of the variants does not matter."""
+    """One variant keeps its own ranking; the order of the variants does not matter.
+
+    A fuser that :attr:`~Fuser.learns` is first fitted on the same variants, in the same
+    order, with true classes its members mostly agree on.
+    """
     rng = np.random.default_rng(seed)
-    scores = rng.random((4, 7, 12))
-    one = fuser.fuse(scores[:1])
-    assert one.shape == (7, 12)
+    scores = rng.random((4, 30, 12))
+    scores /= scores.sum(axis=-1, keepdims=True)  # probabilities, as variants give them
+    truth = np.where(rng.random(30) < 0.7, scores.mean(axis=0).argmax(axis=1), rng.integers(0, 12, 30))
+
+    def fused(members: np.ndarray) -> np.ndarray:
+        if fuser.learns:
+            fuser.fit(members, truth)
+        return fuser.fuse(members)
+
+    one = fused(scores[:1])
+    assert one.shape == (30, 12)
     np.testing.assert_array_equal(np.argsort(-one, axis=1, kind="stable"), np.argsort(-scores[0], axis=1, kind="stable"))
-    np.testing.assert_allclose(fuser.fuse(scores[::-1]), fuser.fuse(scores))
+    np.testing.assert_allclose(fused(scores[::-1]), fused(scores), rtol=1e-5, atol=1e-8)
 
 
 def _check_graph(graph: SceneGraph, dim: int, order: str) -> None:

@@ -1,0 +1,1 @@
+"""Fusion of ssga variants learned on the validation views (stacking)."""
