@@ -5,7 +5,18 @@ from __future__ import annotations
 import pytest
 import torch
 
-from ssga_bench.learned import Learned, LearnedConfig, checkpoint_bytes, find_weights, load_checkpoint, load_strict, resolve_device
+from ssga_bench.learned import (
+    Layout,
+    Learned,
+    LearnedConfig,
+    checkpoint_bytes,
+    find_weights,
+    load_checkpoint,
+    load_strict,
+    meta_shapes,
+    read_layout,
+    resolve_device,
+)
 from ssga_core.errors import CheckpointError, InputError
 
 
@@ -93,3 +104,47 @@ def test_a_pickled_stage_loads_its_own_network_instead_of_carrying_it():
     assert Loaded.loads == 2 and copy.names == ("wall", "floor")
     assert all(torch.equal(a, b) for a, b in zip(stage.net.state_dict().values(), copy.net.state_dict().values(), strict=True))
     assert pickle.loads(pickle.dumps(Learned())).__dict__ == {}, "a stage that reloads nothing pickles as it is"
+
+
+class NetConfig(LearnedConfig):
+    network: str | None = None
+    width: int | None = None
+
+
+LAYOUTS = (Layout("narrow", "trained here"), Layout("wide", "an official release"))
+
+
+def network_of(layout: Layout, state) -> tuple[dict, dict]:
+    """A two-layer network whose first width is read from the file, as official loaders read sizes."""
+    first = state.get("0.weight")
+    width = int(first.shape[0]) if first is not None else 4
+    channels = 3 if layout.name == "narrow" else 6
+    return {"network": layout.name, "width": width}, meta_shapes(
+        lambda: torch.nn.Sequential(torch.nn.Conv2d(channels, width, 3), torch.nn.ReLU(), torch.nn.Conv2d(width, 2, 1))
+    )
+
+
+def test_a_file_names_its_layout_and_the_sizes_read_from_it():
+    wide = torch.nn.Sequential(torch.nn.Conv2d(6, 7, 3), torch.nn.ReLU(), torch.nn.Conv2d(7, 2, 1)).state_dict()
+    layout, fields = read_layout(NetConfig(), wide, LAYOUTS, network_of, "parser 'x'", "w.pt")
+    assert layout.name == "wide" and fields == {"network": "wide", "width": 7}
+    # A field the config leaves out or sets to what the file holds is no contradiction.
+    assert read_layout(NetConfig(network="wide", width=7), wide, LAYOUTS, network_of, "parser 'x'", "w.pt")[1] == fields
+
+
+def test_a_contradicting_config_names_both_and_an_unknown_file_the_closest_layout():
+    wide = torch.nn.Sequential(torch.nn.Conv2d(6, 7, 3), torch.nn.ReLU(), torch.nn.Conv2d(7, 2, 1)).state_dict()
+    with pytest.raises(CheckpointError) as err:
+        read_layout(NetConfig(network="narrow", width=3), wide, LAYOUTS, network_of, "parser 'x'", "w.pt")
+    assert str(err.value) == (
+        "parser 'x': config fields network = 'narrow', width = 3 contradict config field 'weights': w.pt holds the 'wide' layout "
+        "(an official release) with network = 'wide', width = 7; leave network, width out to take the file's"
+    )
+    odd = dict(wide)
+    odd["2.weight"] = torch.zeros(5, 7, 1, 1)
+    with pytest.raises(CheckpointError) as err:
+        read_layout(NetConfig(), odd, LAYOUTS, network_of, "parser 'x'", "w.pt")
+    assert str(err.value) == (
+        "parser 'x': config field 'weights': w.pt matches none of the layouts it loads ('narrow', 'wide'); "
+        "closest: 'wide': 1 wrong shape: 2.weight (5, 7, 1, 1) (expected (2, 7, 1, 1))"
+    )

@@ -61,7 +61,11 @@ def test_plugins_json_lists_distributions_and_config_schemas():
     assert grid["distribution"] == "ssga-parser-grid" and grid["kind"] == "parser"
     assert set(grid["config_schema"]["properties"]) == {"rows", "cols"}
     assert grid["presets"] == ["coarse", "fine"]
+    assert grid["layouts"] == []  # not a learned stage
     assert data["failures"] == []
+    pnv = next(p for p in data["plugins"] if p["name"] == "pnv")
+    assert [layout["name"] for layout in pnv["layouts"]] == ["light", "vgg16"]
+    assert "mapillary_WPCA" in pnv["layouts"][1]["source"]
 
 
 def test_plugins_table():

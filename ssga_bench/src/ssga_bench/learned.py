@@ -29,7 +29,8 @@ Conventions (the same in every learned plugin):
 from __future__ import annotations
 
 import io
-from collections.abc import Hashable, Sequence
+from collections.abc import Callable, Hashable, Mapping, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, ClassVar, Literal
 
@@ -64,6 +65,10 @@ class Learned:
     config: Any
     name: str
     kind: str
+
+    layouts: ClassVar[tuple[Layout, ...]] = ()
+    """The networks a ``weights`` file can hold (official releases, the light ones trained here):
+    the file's keys and shapes say which (:func:`read_layout`); ``ssga plugins`` lists them."""
 
     reloaded: ClassVar[tuple[str, ...]] = ()
     """The attributes ``self._load()`` returns, in order (the network, and what comes with it):
@@ -141,22 +146,99 @@ def load_checkpoint(path: Path, who: str, expected: str = "a torch checkpoint") 
 
 def load_strict(module: torch.nn.Module, state: Any, who: str, path: Path | str, expected: str = "") -> None:
     """``module.load_state_dict(state, strict=True)``, with mismatches said in one line (first keys of each kind)."""
+    what = expected or f"the {type(module).__name__} layout"
+    state = tensor_state(state, who, path, what)
+    count, problems = state_differences({k: tuple(v.shape) for k, v in module.state_dict().items()}, state)
+    if count:
+        raise CheckpointError(f"{who}: config field 'weights': {path} does not match {what}: {problems}")
+    module.load_state_dict(state, strict=True)
+
+
+def tensor_state(state: Any, who: str, path: Path | str, expected: str) -> dict[str, torch.Tensor]:
+    """``state`` if it is a dict of tensors; else a one-line :class:`CheckpointError`."""
     import torch
 
-    what = expected or f"the {type(module).__name__} layout"
     if not isinstance(state, dict) or not all(isinstance(v, torch.Tensor) for v in state.values()):
-        raise CheckpointError(f"{who}: config field 'weights': {path} holds no state dict of tensors; expected {what}")
-    own = module.state_dict()
-    missing = [k for k in own if k not in state]
-    unexpected = [k for k in state if k not in own]
-    shapes = [f"{k} {tuple(state[k].shape)} (expected {tuple(own[k].shape)})" for k in own if k in state and state[k].shape != own[k].shape]
+        raise CheckpointError(f"{who}: config field 'weights': {path} holds no state dict of tensors; expected {expected}")
+    return state
+
+
+def state_differences(expected: Mapping[str, tuple[int, ...]], state: Mapping[str, Any]) -> tuple[int, str]:
+    """How many keys of ``state`` are missing, unexpected or of another shape than ``expected``
+    (key -> shape), and the first of each kind in words ("" when they match)."""
+    missing = [k for k in expected if k not in state]
+    unexpected = [k for k in state if k not in expected]
+    shapes = [f"{k} {tuple(state[k].shape)} (expected {tuple(expected[k])})" for k in expected if k in state and tuple(state[k].shape) != tuple(expected[k])]
     problems = []
     for title, keys in (("missing", missing), ("unexpected", unexpected), ("wrong shape", shapes)):
         if keys:
             problems.append(f"{len(keys)} {title}: {', '.join(keys[:3])}{', ...' if len(keys) > 3 else ''}")
-    if problems:
-        raise CheckpointError(f"{who}: config field 'weights': {path} does not match {what}: {'; '.join(problems)}")
-    module.load_state_dict(state, strict=True)
+    return len(missing) + len(unexpected) + len(shapes), "; ".join(problems)
+
+
+@dataclass(frozen=True)
+class Layout:
+    """One network a plugin's checkpoints can hold: an official release or the light network trained here.
+
+    A file names its own layout by its keys and shapes, as the official loaders read
+    theirs (Patch-NetVLAD takes its cluster count from ``pool.centroids``): ``weights =
+    FILE`` alone is enough, and the config fields the layout implies are set from it.
+    """
+
+    name: str
+    """As the config names the network (``network = "vgg16"``)."""
+    source: str
+    """Where such files come from (``ssga plugins``, the plugin's README and errors say it)."""
+
+
+def read_layout(
+    config: Any,
+    state: Mapping[str, Any],
+    layouts: Sequence[Layout],
+    network_of: Callable[[Layout, Mapping[str, Any]], tuple[dict[str, Any], Mapping[str, tuple[int, ...]]]],
+    who: str,
+    path: Path | str,
+) -> tuple[Layout, dict[str, Any]]:
+    """The layout whose keys and shapes ``state`` has, and the config fields it implies.
+
+    Args:
+        network_of: for a layout and the file's state: the config fields that build that
+            network (its ``network``, and any size read from the file, e.g. ``num_pcs``), and
+            the network's keys and shapes with those fields.
+
+    Raises:
+        CheckpointError: no layout matches (the closest is named, with its first missing,
+            unexpected or wrong-shaped keys); or the config sets a field the file contradicts.
+    """
+    tried = []
+    for layout in layouts:
+        fields, shapes = network_of(layout, state)
+        count, problems = state_differences(shapes, state)
+        if count:
+            tried.append((count, layout, problems))
+            continue
+        # Fields the user (or a preset) set, not defaults: those may contradict the file.
+        clashes = {k: v for k, v in fields.items() if k in config.model_fields_set and getattr(config, k) is not None and getattr(config, k) != v}
+        if clashes:
+            said = ", ".join(f"{k} = {getattr(config, k)!r}" for k in clashes)
+            held = ", ".join(f"{k} = {v!r}" for k, v in clashes.items())
+            raise CheckpointError(
+                f"{who}: config field{'s' if len(clashes) > 1 else ''} {said} contradict{'' if len(clashes) > 1 else 's'} config field 'weights': "
+                f"{path} holds the {layout.name!r} layout ({layout.source}) with {held}; leave {', '.join(clashes)} out to take the file's"
+            )
+        return layout, fields
+    _, closest, problems = min(tried, key=lambda t: t[0])
+    names = ", ".join(repr(layout.name) for layout in layouts)
+    raise CheckpointError(f"{who}: config field 'weights': {path} matches none of the layouts it loads ({names}); closest: {closest.name!r}: {problems}")
+
+
+def meta_shapes(build: Callable[[], torch.nn.Module]) -> dict[str, tuple[int, ...]]:
+    """The keys and shapes of the module ``build`` makes, built on torch's meta device (no memory, no init cost)."""
+    import torch
+
+    with torch.device("meta"):
+        module = build()
+    return {k: tuple(v.shape) for k, v in module.state_dict().items()}
 
 
 CPU_VIEWS_PER_CALL: int | None = 1

@@ -232,6 +232,8 @@ def plugin_rows(registry: Registry) -> list[dict[str, Any]]:
             "consumes": sorted(str(d) for d in entry.cls.consumes),
             "produces": sorted(str(d) for d in entry.cls.produces),
             "presets": sorted(entry.cls.presets),
+            # Checkpoint layouts a learned stage recognises (ssga_bench's Learned kit declares them).
+            "layouts": [{"name": layout.name, "source": layout.source} for layout in getattr(entry.cls, "layouts", ())],
             "config_schema": entry.cls.Config.model_json_schema(),
         }
         for entry in registry

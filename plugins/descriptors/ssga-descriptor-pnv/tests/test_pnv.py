@@ -110,23 +110,45 @@ def test_a_corrupt_file_is_one_line(tmp_path):
     assert "\n" not in str(err.value) and "'weights'" in str(err.value)
 
 
-def test_mismatched_keys_and_shapes_are_one_line(tmp_path):
-    vgg = PatchNetVLAD(VGG16_WIDTHS, 16, 512)
-    with pytest.raises(CheckpointError) as err:  # a VGG16 file read as the light network
-        Pnv(PnvConfig(weights=_checkpoint(tmp_path, vgg, "mapillary_WPCA512.pth.tar"), network="light"))
+def test_an_official_file_alone_names_its_network_and_sizes(tmp_path):
+    # What a user does: weights = the downloaded file, nothing else.
+    vgg = PatchNetVLAD(VGG16_WIDTHS, 8, 128)
+    d = Pnv(PnvConfig(weights=_checkpoint(tmp_path, vgg, "mapillary_WPCA128.pth.tar"), device="cpu"))
+    assert (d.config.network, d.config.num_pcs) == ("vgg16", 128)
+    assert d.net.pool.clusters == 8 and d.extract(make_view()).descriptors.shape[1] == 128
+    copy = pickle.loads(pickle.dumps(d))  # a worker process loads the same network
+    assert (copy.config.network, copy.config.num_pcs) == ("vgg16", 128)
+    light = Pnv(PnvConfig(weights=LIGHT_WEIGHTS, device="cpu"))
+    assert (light.config.network, light.config.num_pcs) == ("light", 512)
+
+
+def test_a_config_that_contradicts_the_file_is_one_line_naming_both(tmp_path):
+    vgg = _checkpoint(tmp_path, PatchNetVLAD(VGG16_WIDTHS, 16, 512), "mapillary_WPCA512.pth.tar")
+    with pytest.raises(CheckpointError) as err:
+        Pnv(PnvConfig(weights=vgg, network="light"))
     message = str(err.value)
-    assert "\n" not in message and "'weights'" in message and "mapillary_WPCA512.pth.tar" in message
-    assert "wrong shape: encoder.0.weight (64, 3, 3, 3) (expected (16, 3, 3, 3))" in message
+    assert "\n" not in message and "mapillary_WPCA512.pth.tar" in message
+    assert "config field network = 'light' contradicts config field 'weights'" in message and "holds the 'vgg16' layout" in message
+    assert "the official Patch-NetVLAD releases" in message
+    with pytest.raises(CheckpointError, match=r"num_pcs = 128 contradicts .* with num_pcs = 512; leave num_pcs out"):
+        Pnv(PnvConfig(weights=vgg, num_pcs=128))
+
+
+def test_a_file_of_no_known_layout_names_the_closest_and_its_first_differences(tmp_path):
     state = PatchNetVLAD(LIGHT_WIDTHS, 16, 512).state_dict()
     del state["WPCA.0.bias"]
     state["pool.conv.bias"] = torch.zeros(16)  # a VLAD v2 file: assignment bias
     path = tmp_path / "v2.pt"
     path.write_bytes(checkpoint_bytes({"state_dict": state}))
-    with pytest.raises(CheckpointError, match=r"1 missing: WPCA.0.bias; 1 unexpected: pool.conv.bias"):
+    with pytest.raises(CheckpointError) as err:
         Pnv(PnvConfig(weights=str(path)))
-    light = PatchNetVLAD(LIGHT_WIDTHS, 16, 512)
-    with pytest.raises(CheckpointError, match=r"WPCA.0.weight \(512, 2048, 1, 1\) \(expected \(128, 2048, 1, 1\)\)"):
-        Pnv(PnvConfig(weights=_checkpoint(tmp_path, light), num_pcs=128))
+    message = str(err.value)
+    assert "\n" not in message and "matches none of the layouts it loads ('light', 'vgg16')" in message
+    assert "closest: 'light': 1 missing: WPCA.0.bias; 1 unexpected: pool.conv.bias" in message
+    wrong_model = tmp_path / "resnet.pt"  # another network altogether
+    wrong_model.write_bytes(checkpoint_bytes({"conv1.weight": torch.zeros(64, 3, 7, 7), "fc.weight": torch.zeros(10, 512)}))
+    with pytest.raises(CheckpointError, match=r"matches none of the layouts .* closest: '(light|vgg16)': \d+ missing: encoder.0.weight"):
+        Pnv(PnvConfig(weights=str(wrong_model)))
 
 
 def test_clusters_are_read_from_the_file(tmp_path):
@@ -139,7 +161,7 @@ def test_clusters_are_read_from_the_file(tmp_path):
 def test_presets_name_the_official_files(ssga_installed_registry, tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
     stage = resolve_stage("descriptor", {"name": "pnv", "preset": "pittsburgh"}, ssga_installed_registry)
-    assert stage.config.network == "vgg16" and stage.config.weights == "pittsburgh_WPCA512.pth.tar"
+    assert stage.config.weights == "pittsburgh_WPCA512.pth.tar"  # the file says its network
     with pytest.raises(CheckpointError, match="'weights' = 'pittsburgh_WPCA512.pth.tar': no such file"):
         stage.create()
     assert Pnv.presets["mapillary"]["weights"] == "mapillary_WPCA512.pth.tar"

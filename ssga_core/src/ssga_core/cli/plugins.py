@@ -32,3 +32,10 @@ def plugins_cli(as_json: Annotated[bool, typer.Option("--json", help="Print JSON
         flow = f"{', '.join(row['consumes']) or '-'} → {', '.join(row['produces']) or '-'}"
         table.add_row(row["distribution"] or row["entry_point"], row["version"], row["kind"], row["name"], flow, _fields(row["config_schema"]))
     Console(width=160).print(table)
+    learned = [row for row in rows if row["layouts"]]
+    if learned:
+        layouts = Table("kind", "name", "layout", "where the files come from", title="checkpoint layouts: weights = FILE alone says which")
+        for row in learned:
+            for layout in row["layouts"]:
+                layouts.add_row(row["kind"], row["name"], layout["name"], layout["source"])
+        Console(width=160).print(layouts)

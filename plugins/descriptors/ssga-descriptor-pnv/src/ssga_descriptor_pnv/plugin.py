@@ -9,8 +9,9 @@ descriptor uses). Everything after extraction is :class:`ssga_bench.BoWDescripto
 
 Weights: the default is the light network trained on procedural homes that the
 benchmark never shows (``weights/pnv-light.pt``; how it was made: the README and
-``weights/pnv-light.json``); the presets ``mapillary`` and ``pittsburgh`` select the
-official VGG16 models, whose files the user places (``mapillary_WPCA512.pth.tar``...).
+``weights/pnv-light.json``). An official file (``mapillary_WPCA512.pth.tar``...), which
+the user places, loads by itself: its keys and shapes say its network (:data:`LAYOUTS`),
+and its cluster count and WPCA size are read from it, as Patch-NetVLAD's loader does.
 """
 
 from __future__ import annotations
@@ -28,11 +29,15 @@ from ssga_bench import (
     RANDOM_WEIGHTS,
     BoWDescriptor,
     BoWDescriptorConfig,
+    Layout,
     Learned,
     LearnedConfig,
     load_checkpoint,
     load_strict,
+    meta_shapes,
     network_calls,
+    read_layout,
+    tensor_state,
 )
 from ssga_descriptor_pnv.layout import LIGHT_WIDTHS, STRIDE, VGG16_WIDTHS, patch_grid
 
@@ -47,6 +52,15 @@ LIGHT_WEIGHTS = "pnv-light.pt"
 
 NETWORKS = {"light": LIGHT_WIDTHS, "vgg16": VGG16_WIDTHS}
 
+LAYOUTS = (
+    Layout("light", "trained here on procedural homes: weights/pnv-light.pt, the default"),
+    Layout("vgg16", "the official Patch-NetVLAD releases: mapillary_WPCA{128,512,4096}.pth.tar, pittsburgh_WPCA{128,512,4096}.pth.tar"),
+)
+"""The networks a ``weights`` file can hold; which one, the file's keys and shapes say."""
+
+RANDOM_NETWORK, RANDOM_PCS = "light", 512
+"""The network random weights build (tests only), where the config leaves it out."""
+
 RANDOM_CLUSTERS = 16
 """K of a network on random weights (PNV's ``train.ini``); with a file, K is the file's."""
 
@@ -60,13 +74,19 @@ class PnvConfig(BoWDescriptorConfig, LearnedConfig):
         default=LIGHT_WEIGHTS,
         min_length=1,
         description="Checkpoint (relative: the plugin's weights/ folder, then the working directory): the light network "
-        "trained here (default), an official file such as 'mapillary_WPCA512.pth.tar' (network = 'vgg16'), or 'random' (tests only).",
+        "trained here (default), an official file such as 'mapillary_WPCA512.pth.tar', or 'random' (tests only).",
     )
-    network: Literal["light", "vgg16"] = Field(
-        default="light",
-        description="Encoder: 'light' (VGG16 4x narrower, the packaged weights) or 'vgg16' (the official models); must match the file.",
+    network: Literal["light", "vgg16"] | None = Field(
+        default=None,
+        description="Encoder: 'light' (VGG16 4x narrower, the packaged weights) or 'vgg16' (the official models). Left out: "
+        "the weights file's, read from its keys and shapes ('light' for random weights); set, the file must hold it.",
     )
-    num_pcs: int = Field(default=512, ge=1, le=65536, description="WPCA output dimension, the local features' length; must match the file.")
+    num_pcs: int | None = Field(
+        default=None,
+        ge=1,
+        le=65536,
+        description="WPCA output dimension, the local features' length. Left out: the weights file's (512 for random weights); set, the file must hold it.",
+    )
     patch_size: int = Field(default=5, ge=1, le=16, description="Patch side in conv5_3 cells (16 px each); PNV's speed/storage setting: 5.")
     stride: int = Field(default=1, ge=1, le=16, description="Cells between neighbouring patches.")
     image_size: int | None = Field(
@@ -101,10 +121,11 @@ class Pnv(Learned, BoWDescriptor):
     abbrev = "P"  # the paper's tables: "P (DS)", "P-SL (PDS)"
     Config = PnvConfig
     reloaded = ("net",)
+    layouts = LAYOUTS
     presets = {
         "light": {},
-        "mapillary": {"network": "vgg16", "weights": "mapillary_WPCA512.pth.tar"},
-        "pittsburgh": {"network": "vgg16", "weights": "pittsburgh_WPCA512.pth.tar"},
+        "mapillary": {"weights": "mapillary_WPCA512.pth.tar"},
+        "pittsburgh": {"weights": "pittsburgh_WPCA512.pth.tar"},
     }
 
     def __init__(self, config: PnvConfig | None = None) -> None:
@@ -116,6 +137,7 @@ class Pnv(Learned, BoWDescriptor):
         return f"{self.kind} {self.name!r}"
 
     def _load(self) -> PatchNetVLAD:
+        """The network, once per process per file; ``self.config`` gets the file's ``network`` and ``num_pcs``."""
         cfg: PnvConfig = self.config  # type: ignore[assignment]
         device = self.device
         shape = (cfg.network, cfg.num_pcs, cfg.patch_size, cfg.stride, str(device))
@@ -127,33 +149,44 @@ class Pnv(Learned, BoWDescriptor):
             key = (str(path), stat.st_mtime_ns, stat.st_size, *shape)
         with _LOCK:
             if key not in _NETWORKS:
-                _NETWORKS[key] = (self._random() if self.random_weights else self._from_file(path)).to(device).eval()
-            return _NETWORKS[key]
+                net, fields = self._random() if self.random_weights else self._from_file(path)
+                _NETWORKS[key] = (net.to(device).eval(), fields)
+            net, fields = _NETWORKS[key]
+        self.config = cfg.model_copy(update=fields)
+        return net
 
-    def _random(self) -> PatchNetVLAD:
+    def _random(self) -> tuple[PatchNetVLAD, dict[str, Any]]:
         import torch
 
         from ssga_descriptor_pnv.model import PatchNetVLAD
 
         cfg: PnvConfig = self.config  # type: ignore[assignment]
+        fields = {"network": cfg.network or RANDOM_NETWORK, "num_pcs": cfg.num_pcs or RANDOM_PCS}
         with torch.random.fork_rng(devices=[]):
             torch.manual_seed(RANDOM_SEED)
-            return PatchNetVLAD(NETWORKS[cfg.network], RANDOM_CLUSTERS, cfg.num_pcs, cfg.patch_size, cfg.stride)
+            return PatchNetVLAD(NETWORKS[fields["network"]], RANDOM_CLUSTERS, fields["num_pcs"], cfg.patch_size, cfg.stride), fields
 
-    def _from_file(self, path: Path) -> PatchNetVLAD:
-        import torch
-
+    def _from_file(self, path: Path) -> tuple[PatchNetVLAD, dict[str, Any]]:
         from ssga_descriptor_pnv.model import PatchNetVLAD
 
         cfg: PnvConfig = self.config  # type: ignore[assignment]
-        expected = f"a Patch-NetVLAD checkpoint ({{'state_dict': encoder.*, pool.*, WPCA.*}}) of the {cfg.network!r} network with num_pcs = {cfg.num_pcs}"
+        expected = "a Patch-NetVLAD checkpoint ({'state_dict': encoder.*, pool.*, WPCA.*}) of the 'light' or 'vgg16' network"
         checkpoint = load_checkpoint(path, self.who, expected)
-        state = checkpoint.get("state_dict", checkpoint) if isinstance(checkpoint, dict) else checkpoint
-        centroids = state.get("pool.centroids") if isinstance(state, dict) else None
-        clusters = int(centroids.shape[0]) if isinstance(centroids, torch.Tensor) and centroids.ndim == 2 else RANDOM_CLUSTERS
-        net = PatchNetVLAD(NETWORKS[cfg.network], clusters, cfg.num_pcs, cfg.patch_size, cfg.stride)
+        state = tensor_state(checkpoint.get("state_dict", checkpoint) if isinstance(checkpoint, dict) else checkpoint, self.who, path, expected)
+        _, fields = read_layout(cfg, state, LAYOUTS, self._network_of, self.who, path)
+        net = PatchNetVLAD(NETWORKS[fields["network"]], _clusters(state), fields["num_pcs"], cfg.patch_size, cfg.stride)
         load_strict(net, state, self.who, path, expected)
-        return net
+        return net, fields
+
+    def _network_of(self, layout: Layout, state: Any) -> tuple[dict[str, Any], dict[str, tuple[int, ...]]]:
+        """The fields and keys and shapes of ``layout``'s network with the file's cluster count and WPCA size."""
+        from ssga_descriptor_pnv.model import PatchNetVLAD
+
+        cfg: PnvConfig = self.config  # type: ignore[assignment]
+        bias = state.get("WPCA.0.bias")
+        num_pcs = int(bias.shape[0]) if bias is not None and bias.ndim == 1 else cfg.num_pcs or RANDOM_PCS
+        fields = {"network": layout.name, "num_pcs": num_pcs}
+        return fields, meta_shapes(lambda: PatchNetVLAD(NETWORKS[layout.name], _clusters(state), num_pcs, cfg.patch_size, cfg.stride))
 
     def _extract(self, view: View) -> LocalFeatures:
         return self._extract_many([view])[0]
@@ -195,6 +228,12 @@ class Pnv(Learned, BoWDescriptor):
             raise InputError(f"{self.who}: a {w}x{h} view is too small for {cfg.patch_size}-cell patches (needs {STRIDE * cfg.patch_size} px a side)")
         return side
 
+
+
+def _clusters(state: Any) -> int:
+    """K, read from ``pool.centroids`` as Patch-NetVLAD's loader reads it."""
+    centroids = state.get("pool.centroids")
+    return int(centroids.shape[0]) if centroids is not None and centroids.ndim == 2 else RANDOM_CLUSTERS
 
 
 def _in_view_pixels(positions: np.ndarray, side: tuple[int, int], shape: tuple[int, int]) -> np.ndarray:
