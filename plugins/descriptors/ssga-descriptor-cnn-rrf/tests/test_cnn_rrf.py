@@ -6,6 +6,7 @@ so the whole file runs in seconds on one CPU core.
 
 from __future__ import annotations
 
+import pickle
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -311,9 +312,9 @@ def test_a_cached_classifier_is_a_checkpoint_for_weights(trained, tmp_path, monk
         (b"garbage", "is not a readable checkpoint"),
         (
             "wrong-width",
-            r"does not match the vgg16 \(width 0.0625, hidden 16, pool 7\) layout with a 1000-class .*wrong shape: features.0.weight \(8, 3, 3, 3\)",
+            r"config field width = 0.0625 contradicts config field 'weights': .*w.pt holds the 'vgg16' layout .* with width = 0.125; leave width out",
         ),
-        ("wrong-head", r"1000-class \(ImageNet\) or 4-class \(place\) last layer: 2 wrong shape: classifier.6.weight \(7, 16\)"),
+        ("unknown", r"matches none of the layouts it loads \('vgg16', 'vgg16_bn', 'vgg11', 'vgg11_bn'\); closest: 'vgg16': 1 missing: features.0.bias"),
         ("missing", "no such file"),
     ],
 )
@@ -321,18 +322,61 @@ def test_a_bad_weights_file_is_one_line_naming_the_field_and_the_file(tmp_path, 
     path = tmp_path / "w.pt"
     if content == "wrong-width":
         path.write_bytes(checkpoint_bytes(torchvision_vgg16_state(width=1 / 8, hidden=16)))
-    elif content == "wrong-head":
-        path.write_bytes(checkpoint_bytes(torchvision_vgg16_state(width=1 / 16, hidden=16, classes=7)))
+    elif content == "unknown":
+        state = torchvision_vgg16_state(width=1 / 16, hidden=16)
+        del state["features.0.bias"]
+        path.write_bytes(checkpoint_bytes(state))
     elif isinstance(content, bytes):
         path.write_bytes(content)
-    d = tiny(tmp_path, **FILE_NET, weights=str(path))
-    views, labels = colour_set(per_class=1)
-    with pytest.raises(CheckpointError, match=message) as err:
-        d.fit(views, labels)
+    with pytest.raises(CheckpointError, match=message) as err:  # when the descriptor is made, before any work
+        tiny(tmp_path, **FILE_NET, weights=str(path))
     text = str(err.value)
     assert "\n" not in text and "'weights'" in text and "w.pt" in text
+
+
+def test_a_head_of_neither_imagenet_nor_the_places_is_refused_at_fit(tmp_path):
+    path = tmp_path / "w.pt"
+    path.write_bytes(checkpoint_bytes(torchvision_vgg16_state(width=1 / 16, hidden=16, classes=7)))
+    d = tiny(tmp_path, **FILE_NET, weights=str(path))
+    views, labels = colour_set(per_class=1)
+    with pytest.raises(CheckpointError, match=r"1000-class \(ImageNet\) or 4-class \(place\) last layer: 2 wrong shape: classifier.6.weight \(7, 16\)"):
+        d.fit(views, labels)
     with pytest.raises(NotFittedError):  # a failed fit leaves nothing half-loaded
         _ = d.dim
+
+
+def test_a_file_alone_sets_the_network_it_holds(tmp_path):
+    # torchvision's VGG16 layout (narrowed to 1/16 here) with no network field in the config.
+    path = tmp_path / "vgg16-397923af.pth"
+    path.write_bytes(checkpoint_bytes(torchvision_vgg16_state(width=1 / 16, hidden=16)))
+    d = CnnRrf(CnnRrfConfig(weights=str(path), cache=False, device="cpu", steps=0))
+    assert (d.config.arch, d.config.batch_norm, d.config.width, d.config.hidden, d.config.pool) == ("vgg16", False, 1 / 16, 16, 7)
+    views, labels = colour_set(per_class=1)
+    d.fit(views, labels)
+    assert d.dim == 4
+    state = d.state_dict()
+    elsewhere = pickle.loads(pickle.dumps(CnnRrf(CnnRrfConfig(weights=str(path), cache=False, device="cpu"))))
+    elsewhere.load_state_dict(state)  # a worker makes the same network from the same config
+    view, regions, _ = quadrants()
+    np.testing.assert_array_equal(elsewhere.describe(view, regions), d.describe(view, regions))
+    light = tmp_path / "light.pt"  # a light classifier trained here: batch norm, width 0.125
+    light.write_bytes(checkpoint_bytes({"state_dict": VGG("vgg16", 4, width=0.125, hidden=256, pool=2, batch_norm=True).state_dict()}))
+    assert CnnRrf(CnnRrfConfig(weights=str(light), cache=False)).config.batch_norm is True
+
+
+def test_a_malicious_pickle_never_runs(tmp_path):
+    import os
+    import pickle as plain
+
+    class Payload:
+        def __reduce__(self):
+            return (os.system, (f"touch {tmp_path / 'ran'}",))
+
+    path = tmp_path / "evil.pt"
+    path.write_bytes(plain.dumps(Payload()))
+    with pytest.raises(CheckpointError, match="evil.pt is not a readable checkpoint"):
+        CnnRrf(CnnRrfConfig(weights=str(path)))
+    assert not (tmp_path / "ran").exists()
 
 
 def test_a_file_is_also_found_in_torchs_hub_cache(tmp_path, monkeypatch):

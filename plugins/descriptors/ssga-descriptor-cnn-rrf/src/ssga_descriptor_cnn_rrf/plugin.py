@@ -23,8 +23,10 @@ laptop CPU; the ``vgg16`` preset is the paper's VGG16, for GPU machines.
 
 from __future__ import annotations
 
+import functools
 import json
 import os
+import warnings
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from pathlib import Path
@@ -34,6 +36,8 @@ import numpy as np
 from pydantic import Field
 
 from ssga_bench import (
+    RANDOM_WEIGHTS,
+    Layout,
     Learned,
     LearnedConfig,
     NotFittedError,
@@ -41,9 +45,13 @@ from ssga_bench import (
     checkpoint_bytes,
     load_checkpoint,
     load_strict,
+    meta_shapes,
+    read_layout,
+    tensor_state,
 )
 from ssga_core import CheckpointError, Descriptor, InputError, RegionDescriptor, Regions, View, hookimpl, reciprocal_ranks
-from ssga_descriptor_cnn_rrf.layout import Layout
+from ssga_descriptor_cnn_rrf.layout import LAYOUTS as CONVOLUTIONS
+from ssga_descriptor_cnn_rrf.layout import Arch
 
 if TYPE_CHECKING:  # torch, the network and its training load when a classifier is built, not when the plugin registers
     import torch
@@ -56,8 +64,55 @@ SCRATCH = "scratch"
 """The ``weights`` value for a classifier trained from random initialisation at ``fit``, on the training views."""
 IMAGENET_CLASSES = 1000
 
+LAYOUTS = (
+    Layout("vgg16", "torchvision's ImageNet VGG16, vgg16-397923af.pth (the vgg16 preset); place classifiers fine-tuned from it"),
+    Layout("vgg16_bn", "torchvision's vgg16_bn-6c64b313.pth; the light classifiers trained here (width 0.125, hidden 256, pool 2)"),
+    Layout("vgg11", "torchvision's vgg11-8a719046.pth"),
+    Layout("vgg11_bn", "torchvision's vgg11_bn-6002323d.pth"),
+)
+"""The networks a ``weights`` file can hold. Which one, and its width, hidden and pool sizes,
+the file's keys and shapes say; its last layer may have ImageNet's 1000 classes or the places'."""
+
 _RUNTIME_FIELDS = frozenset({"device", "cache", "cache_dir", "describe_batch", "threads"})
 """Config fields that do not change what is trained (left out of the cache key)."""
+
+
+def _file_shapes(path: Path, who: str) -> dict[str, Any]:
+    """The keys and shapes of the weights file at ``path``, as meta tensors (memory-mapped: a
+    528 MB VGG16 file is not read to tell its layout), kept per file for the process."""
+    stat = path.stat()
+    return _shapes_cached(str(path), stat.st_mtime_ns, stat.st_size, who)
+
+
+@functools.lru_cache(maxsize=8)
+def _shapes_cached(path: str, mtime: int, size: int, who: str) -> dict[str, Any]:
+    import torch
+
+    expected = "a VGG state dict (" + ", ".join(layout.name for layout in LAYOUTS) + ")"
+    try:
+        with warnings.catch_warnings():  # the reading below says what is wrong with the file, once
+            warnings.simplefilter("ignore")
+            checkpoint = torch.load(path, map_location="cpu", weights_only=True, mmap=True)
+    except Exception:  # not memory-mappable (an old torch format) or not readable: load_checkpoint says which
+        checkpoint = load_checkpoint(Path(path), who, expected)
+    state = tensor_state(checkpoint.get("state_dict", checkpoint) if isinstance(checkpoint, dict) else checkpoint, who, path, expected)
+    return {k: torch.empty(v.shape, device="meta") for k, v in state.items()}
+
+
+def _network_of(layout: Layout, state: Mapping[str, Any]) -> tuple[dict[str, Any], dict[str, tuple[int, ...]]]:
+    """The network fields of ``layout`` with the sizes the file's first convolution and hidden layers say."""
+    from ssga_descriptor_cnn_rrf.vgg import VGG
+
+    arch, batch_norm = layout.name.removesuffix("_bn"), layout.name.endswith("_bn")
+    first, hidden, head = (state.get(k) for k in ("features.0.weight", "classifier.0.weight", "classifier.6.weight"))
+    width = first.shape[0] / CONVOLUTIONS[arch][0] if first is not None and first.ndim == 4 else 1.0
+    last = max(1, round(512 * width))  # the last convolution's channels
+    cells = hidden.shape[1] / last if hidden is not None and hidden.ndim == 2 else 49
+    pool = max(1, round(cells**0.5))
+    rows = int(hidden.shape[0]) if hidden is not None and hidden.ndim == 2 else 4096
+    fields = {"arch": arch, "batch_norm": batch_norm, "width": width, "hidden": rows, "pool": pool}
+    classes = int(head.shape[0]) if head is not None and head.ndim == 2 else IMAGENET_CLASSES
+    return fields, meta_shapes(lambda: VGG(arch, classes, width=width, hidden=rows, pool=pool, batch_norm=batch_norm))
 
 
 def default_cache_dir() -> Path:
@@ -77,7 +132,7 @@ class CnnRrfConfig(LearnedConfig):
         "has 1000 classes (ImageNet: fine-tuned at fit with a new last layer) or the place count (used as is); "
         "'random': untrained (tests only).",
     )
-    arch: Layout = Field(default="vgg16", description="Convolution layout: 'vgg16' (13 convolutions) or 'vgg11' (8).")
+    arch: Arch = Field(default="vgg16", description="Convolution layout: 'vgg16' (13 convolutions) or 'vgg11' (8).")
     width: float = Field(
         default=0.125, gt=0.0, le=1.0, description="Channel multiplier of every convolution (1: VGG's 64...512)."
     )
@@ -136,10 +191,17 @@ class CnnRrf(Learned, RegionDescriptor):
     abbrev = "CNN"
     Config = CnnRrfConfig
     presets = {"light": LIGHT, "vgg16": VGG16}
+    layouts = LAYOUTS
     config: CnnRrfConfig
 
     def __init__(self, config: CnnRrfConfig | None = None) -> None:
         super().__init__(config)
+        # The network the weights file holds, before anything is built from the config: every
+        # process that makes this descriptor (a worker loading a fitted state) builds the same.
+        if self.config.weights not in (SCRATCH, RANDOM_WEIGHTS):
+            path = self._weights_path()
+            _, fields = read_layout(self.config, _file_shapes(path, self.who), LAYOUTS, _network_of, self.who, path)
+            self.config = self.config.model_copy(update=fields)
         self._net: VGG | None = None
         self._classes: np.ndarray | None = None
         self.training: TrainingResult | None = None

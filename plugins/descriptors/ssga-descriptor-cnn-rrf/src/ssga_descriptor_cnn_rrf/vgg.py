@@ -17,7 +17,7 @@ from __future__ import annotations
 import torch
 from torch import nn
 
-from ssga_descriptor_cnn_rrf.layout import LAYOUTS, Layout
+from ssga_descriptor_cnn_rrf.layout import LAYOUTS, Arch
 
 IMAGENET_MEAN = (0.485, 0.456, 0.406)
 IMAGENET_STD = (0.229, 0.224, 0.225)
@@ -39,7 +39,7 @@ class VGG(nn.Module):
 
     def __init__(
         self,
-        layout: Layout = "vgg16",
+        layout: Arch = "vgg16",
         num_classes: int = 1000,
         *,
         width: float = 1.0,
