@@ -290,3 +290,41 @@ def test_a_learned_fusion_without_validation_views_is_refused_before_anything_ru
 
     with pytest.raises(ConfigError, match=re.escape(problem)):
         validate_experiment({"workspace": {"name": "test-wall"}, "variants": ["SD"], **config}, stand_in_registry)
+
+
+def test_packaged_weights_on_another_kind_of_workspace_are_flagged_in_the_report(tmp_path, dataset, ssga_plugin_set, monkeypatch):
+    from ssga_bench import testing
+    from ssga_bench.learned import Learned, LearnedConfig
+    from ssga_core import hookimpl
+    from ssga_core.testing import stages
+    from ssga_core.testing.stages import PatchColour
+
+    packaged = tmp_path / "weights"
+    packaged.mkdir()
+    (packaged / "light.pt").write_bytes(b"")
+
+    class TrainedHere(Learned, PatchColour):
+        """PatchColour standing in for a learned descriptor that ships weights trained on procedural homes."""
+
+        name = "test-trained-here"
+        Config = LearnedConfig
+        packaged_weights = packaged
+
+    class Plugin:
+        @hookimpl
+        def ssga_register_descriptors(self):
+            return [TrainedHere]
+
+    ssga_plugin_set.load_entry_points()
+    for module, name in ((stages, "stand-ins"), (testing, "stand-in-workspaces"), (Plugin(), "trained-here")):
+        ssga_plugin_set.register(module, name)
+    config = {
+        "workspace": {"name": "test-wall"},
+        "stages": {"parser": {"name": "test-stripes"}, "descriptor": {"name": "test-trained-here", "weights": "light.pt"}, "synthesizer": {"name": "test-shift"}},
+        "variants": ["SD", "PD"],
+        "training": {"classifier": "graph-match"},
+    }
+    report, _ = run_experiment(validate_experiment(config, ssga_plugin_set.registry()), dataset, tmp_path / "out")
+    flagged = {label: row.flags for label, row in report.rows.items() if row.flags}
+    assert set(flagged) >= {"PC (SD)", "PC-ST (PD)"}
+    assert "descriptor 'test-trained-here' runs the weights trained here on procedural homes (light.pt), not on views like this 'test-wall' workspace's" in report.markdown()

@@ -148,3 +148,21 @@ def test_a_contradicting_config_names_both_and_an_unknown_file_the_closest_layou
         "parser 'x': config field 'weights': w.pt matches none of the layouts it loads ('narrow', 'wide'); "
         "closest: 'wide': 1 wrong shape: 2.weight (5, 7, 1, 1) (expected (2, 7, 1, 1))"
     )
+
+
+def test_packaged_weights_on_another_kind_of_workspace_are_flagged(tmp_path):
+    packaged = tmp_path / "weights"
+    packaged.mkdir()
+    (packaged / "light.pt").write_bytes(b"")
+    (tmp_path / "official.pt").write_bytes(b"")
+
+    class Stage(Learned):
+        kind, name = "descriptor", "x"
+        packaged_weights = packaged
+
+    warning = Stage.out_of_domain(LearnedConfig(weights="light.pt"), "mesh")
+    assert warning == "descriptor 'x' runs the weights trained here on procedural homes (light.pt), not on views like this 'mesh' workspace's"
+    assert Stage.out_of_domain(LearnedConfig(weights=str(packaged / "light.pt")), "folder")  # the same file by its path
+    assert Stage.out_of_domain(LearnedConfig(weights="light.pt"), "procedural") == ""  # the homes they were trained on
+    assert Stage.out_of_domain(LearnedConfig(weights=str(tmp_path / "official.pt")), "mesh") == ""  # a user's file
+    assert Stage.out_of_domain(LearnedConfig(weights="random"), "mesh") == ""  # labelled as random already

@@ -52,6 +52,7 @@ from ssga_bench.evaluation import Report, truth_ranks
 from ssga_bench.execution import Executor, memo, open_executor
 from ssga_bench.gcn import load_gcn, save_gcn, train_gcn
 from ssga_bench.io import atomic_write_bytes, load_npy, load_npz, npy_bytes, npz_bytes, read_json, warn, writable_folder, write_json
+from ssga_bench.learned import Learned
 from ssga_bench.matching import GraphMatcher
 from ssga_bench.oracle import TrueRender
 from ssga_bench.protocol import Protocol, Sample
@@ -925,6 +926,11 @@ def run_experiment(
             references[f"oracle: {label} on true renders"] = oracle_results[label].test
 
     flags = {label: "training stopped at the epoch cap" for label in labels if results[label].training.get("stopped_at_cap")}
+    for rv in experiment.variants:  # packaged weights meeting views unlike those they were trained on
+        for stage in rv.stages.values():
+            warning = issubclass(stage.cls, Learned) and stage.cls.out_of_domain(stage.config, experiment.workspace.name)
+            if warning and rv.label in results:
+                flags[rv.label] = "; ".join(filter(None, (flags.get(rv.label), warning)))
     landmark = {s.cell: s.pose.yaw for s in dataset.split("train")}
     near = np.array([heading_offset_deg(s.pose.yaw, landmark[s.cell]) <= 60.0 for s in tests])
     levels = np.array([s.level for s in tests])

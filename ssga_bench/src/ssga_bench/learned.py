@@ -88,9 +88,27 @@ class Learned:
             for name, value in zip(self.reloaded, loaded if len(self.reloaded) > 1 else (loaded,), strict=True):
                 setattr(self, name, value)
 
+    packaged_weights: ClassVar[Path | None] = None
+    """The plugin's own ``weights/`` folder, if it ships weights: those were trained here, on
+    homes of the :attr:`trained_on` workspace source (their provenance is beside them)."""
+    trained_on: ClassVar[str] = "procedural"
+
     @classmethod
     def caveat(cls, config: Any) -> str:
         return "random weights" if getattr(config, "weights", None) == RANDOM_WEIGHTS else ""
+
+    @classmethod
+    def out_of_domain(cls, config: Any, workspace: str) -> str:
+        """What a report says when ``config`` runs the packaged weights, trained on
+        :attr:`trained_on` homes, on the views of another workspace source; else ``""``."""
+        if cls.packaged_weights is None or workspace == cls.trained_on or config.weights == RANDOM_WEIGHTS:
+            return ""
+        path = Path(config.weights).expanduser()
+        packaged = cls.packaged_weights / path.name
+        found_there = path.parent.resolve() == cls.packaged_weights.resolve() if path.is_absolute() else packaged.exists()
+        if not found_there:
+            return ""
+        return f"{cls.kind} {cls.name!r} runs the weights trained here on {cls.trained_on} homes ({path.name}), not on views like this {workspace!r} workspace's"
 
     @property
     def random_weights(self) -> bool:

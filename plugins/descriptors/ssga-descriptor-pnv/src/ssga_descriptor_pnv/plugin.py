@@ -122,6 +122,7 @@ class Pnv(Learned, BoWDescriptor):
     Config = PnvConfig
     reloaded = ("net",)
     layouts = LAYOUTS
+    packaged_weights = WEIGHTS_DIR
     presets = {
         "light": {},
         "mapillary": {"weights": "mapillary_WPCA512.pth.tar"},
