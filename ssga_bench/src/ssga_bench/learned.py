@@ -29,6 +29,7 @@ Conventions (the same in every learned plugin):
 from __future__ import annotations
 
 import io
+import warnings
 from collections.abc import Callable, Hashable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -154,7 +155,9 @@ def load_checkpoint(path: Path, who: str, expected: str = "a torch checkpoint") 
     import torch
 
     try:
-        return torch.load(path, map_location="cpu", weights_only=True)
+        with warnings.catch_warnings():  # torch's remarks on a file's pickle protocol: the error below, if any, says what matters
+            warnings.simplefilter("ignore")
+            return torch.load(path, map_location="cpu", weights_only=True)
     except FileNotFoundError:
         raise MissingWeightsError(f"{who}: config field 'weights': {path}: no such file; expected {expected}") from None
     except Exception as exc:  # torch raises many kinds (pickle, zip, unpickler) for one cause: not a readable checkpoint

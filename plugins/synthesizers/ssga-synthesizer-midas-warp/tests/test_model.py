@@ -1,15 +1,19 @@
-"""The network: the official v2.1-small state-dict layout, MiDaS's preprocessing, strict loading and its errors."""
+"""The network: the official v2.1-small state-dict layout, MiDaS's preprocessing, the layout a file names, strict loading and its errors."""
 
 from __future__ import annotations
+
+import os
+import pickle
 
 import numpy as np
 import pytest
 import torch
+from ssga_synthesizer_midas_warp.calibration import Calibration, calibration_path, sha256_file
 from ssga_synthesizer_midas_warp.model import LIGHT, V21_SMALL, MidasNet, network_size, predict, preprocess
-from ssga_synthesizer_midas_warp.plugin import MidasWarp, MidasWarpConfig
+from ssga_synthesizer_midas_warp.plugin import OFFICIAL_WEIGHTS, MidasWarp, MidasWarpConfig
 
 from ssga_bench import checkpoint_bytes
-from ssga_core import CheckpointError, MissingWeightsError
+from ssga_core import CheckpointError, MissingWeightsError, resolve_stage
 
 
 @pytest.fixture(scope="module")
@@ -92,31 +96,103 @@ def _error(config: MidasWarpConfig, kind=CheckpointError) -> str:
     return message
 
 
-def test_an_official_style_state_dict_loads_strictly(tmp_path, official):
-    """A plain state dict (as the released midas_v21_small_256.pt) and MiDaS's {'model', 'optimizer'} format."""
+def test_the_official_file_alone_names_its_network(tmp_path, official):
+    """What a user does: weights = the downloaded file, nothing else; plain (as the released
+    midas_v21_small_256.pt) or in MiDaS's {'model', 'optimizer'} training format."""
     state = official.state_dict()
-    for name, obj in (("plain.pt", state), ("train-format.pt", {"model": state, "optimizer": {}})):
-        synthesizer = MidasWarp(MidasWarpConfig(network="v21-small", weights=_save(tmp_path / name, obj), calibration="minmax", device="cpu"))
+    for folder, obj in (("plain", state), ("train-format", {"model": state, "optimizer": {}})):
+        (tmp_path / folder).mkdir()
+        config = MidasWarpConfig(weights=_save(tmp_path / folder / OFFICIAL_WEIGHTS, obj), calibration="minmax", device="cpu")
+        synthesizer = MidasWarp(config)
+        assert synthesizer.config.network == "v21-small"
         for key in ("pretrained.layer1.0.weight", "scratch.output_conv.4.bias"):
             torch.testing.assert_close(synthesizer.net.state_dict()[key], state[key])
+    again = MidasWarp(config)  # the network cached in this process: the file's network comes with it
+    assert again.net is synthesizer.net and again.config.network == "v21-small" and config.network is None
+    assert MidasWarp(MidasWarpConfig(device="cpu")).config.network == "light"  # the packaged weights
+    assert MidasWarp(MidasWarpConfig(weights="random", device="cpu")).config.network == "light"
 
 
-def test_loading_errors_name_the_field_and_the_file(tmp_path, official):
-    state = official.state_dict()
-    missing = dict(state)
-    del missing["scratch.refinenet2.out_conv.bias"]
+def test_the_calibration_is_checked_against_the_files_network(tmp_path, official):
+    weights = tmp_path / OFFICIAL_WEIGHTS
+    _save(weights, official.state_dict())
+    Calibration(0.5, 0.1, "v21-small", sha256_file(weights), {}).write(calibration_path(weights))
+    synthesizer = MidasWarp(MidasWarpConfig(weights=str(weights), device="cpu"))  # calibration = 'auto': the file beside it
+    assert synthesizer.calibration is not None and synthesizer.calibration.network == "v21-small"
+
+
+def test_the_preset_names_only_the_file(ssga_installed_registry, tmp_path, monkeypatch, official):
+    monkeypatch.chdir(tmp_path)
+    stage = resolve_stage("synthesizer", {"name": "midas-warp", "preset": "v21-small", "calibration": "minmax"}, ssga_installed_registry)
+    assert stage.config.weights == OFFICIAL_WEIGHTS and stage.config.network is None  # the file says its network
+    with pytest.raises(MissingWeightsError, match=f"'weights' = '{OFFICIAL_WEIGHTS}': no such file"):
+        stage.create()
+    _save(tmp_path / OFFICIAL_WEIGHTS, official.state_dict())
+    assert stage.create().config.network == "v21-small"
+
+
+def test_a_network_the_file_contradicts_is_one_line_naming_both(tmp_path, official):
+    weights = _save(tmp_path / OFFICIAL_WEIGHTS, official.state_dict())
+    message = _error(MidasWarpConfig(weights=weights, network="light", calibration="minmax"))
+    assert "synthesizer 'midas-warp': config field network = 'light' contradicts config field 'weights'" in message
+    assert f"{OFFICIAL_WEIGHTS} holds the 'v21-small' layout (the official MiDaS v2.1 small release" in message
+    assert "leave network out to take the file's" in message
+    light = _save(tmp_path / "light.pt", MidasNet(LIGHT).state_dict())
+    message = _error(MidasWarpConfig(weights=light, network="v21-small", calibration="minmax"))
+    assert "network = 'v21-small' contradicts" in message and "light.pt holds the 'light' layout" in message
+
+
+def test_a_file_of_no_known_layout_names_the_closest_and_its_first_differences(tmp_path, official):
+    edited = dict(official.state_dict())
+    del edited["scratch.refinenet2.out_conv.bias"]
+    edited["scratch.extra"] = torch.zeros(1)
+    message = _error(MidasWarpConfig(weights=_save(tmp_path / "edited.pt", edited), calibration="minmax"))
+    assert "config field 'weights'" in message and "edited.pt matches none of the layouts it loads ('light', 'v21-small')" in message
+    assert "closest: 'v21-small': 1 missing: scratch.refinenet2.out_conv.bias; 1 unexpected: scratch.extra" in message
+    resnet = {"conv1.weight": torch.zeros(64, 3, 7, 7), "fc.weight": torch.zeros(10, 512)}  # another network altogether
+    message = _error(MidasWarpConfig(weights=_save(tmp_path / "resnet.pt", {"state_dict": resnet}), calibration="minmax"))
+    assert "matches none of the layouts" in message and "closest: 'light': 248 missing: pretrained.layer1.0.weight" in message
+    assert "2 unexpected: conv1.weight, fc.weight" in message
+
+
+def test_unreadable_files_are_one_line(tmp_path):
+    whole = checkpoint_bytes(MidasNet(LIGHT).state_dict())
+    (tmp_path / "truncated.pt").write_bytes(whole[: len(whole) // 2])
+    (tmp_path / "noise.pt").write_bytes(np.random.default_rng(0).integers(0, 256, 4096, dtype=np.uint8).tobytes())
+    _save(tmp_path / "no-tensors.pt", {"state_dict": {"pretrained.layer1.0.weight": [1.0, 2.0]}})
     cases = {
-        "absent.pt": (str(tmp_path / "absent.pt"), MissingWeightsError, "no such file"),
-        "missing.pt": (_save(tmp_path / "missing.pt", missing), CheckpointError, "1 missing: scratch.refinenet2.out_conv.bias"),
-        "extra.pt": (_save(tmp_path / "extra.pt", {**state, "scratch.extra": torch.zeros(1)}), CheckpointError, "1 unexpected: scratch.extra"),
-        "corrupt.pt": (str(tmp_path / "corrupt.pt"), CheckpointError, "not a readable checkpoint"),
-        "light.pt": (_save(tmp_path / "light.pt", MidasNet(LIGHT).state_dict()), CheckpointError, "wrong shape"),
+        "absent.pt": (MissingWeightsError, "no such file"),
+        "truncated.pt": (CheckpointError, "is not a readable checkpoint"),
+        "noise.pt": (CheckpointError, "is not a readable checkpoint"),
+        "no-tensors.pt": (CheckpointError, "holds no state dict of tensors; expected a MiDaS-small state dict"),
     }
-    (tmp_path / "corrupt.pt").write_bytes(b"\x80\x02 not a checkpoint" * 10)
-    for name, (weights, kind, what) in cases.items():
-        message = _error(MidasWarpConfig(network="v21-small", weights=weights, calibration="minmax"), kind)
-        assert "config field 'weights'" in message and name in message and what in message, message
-        assert "synthesizer 'midas-warp'" in message
+    for name, (kind, what) in cases.items():
+        message = _error(MidasWarpConfig(weights=str(tmp_path / name), calibration="minmax"), kind)
+        assert message.startswith("synthesizer 'midas-warp': config field 'weights'") and name in message and what in message, message
+
+
+@pytest.mark.parametrize("save", ["pickle", "torch.save"])
+def test_a_malicious_pickle_never_runs(tmp_path, save):
+    ran = tmp_path / "ran"
+
+    class Payload:
+        def __reduce__(self):
+            return (os.system, (f"touch {ran}",))
+
+    obj = {"state_dict": Payload()}
+    path = tmp_path / OFFICIAL_WEIGHTS
+    if save == "pickle":
+        path.write_bytes(pickle.dumps(obj, protocol=2))
+    else:
+        torch.save(obj, path)
+    message = _error(MidasWarpConfig(weights=str(path), calibration="minmax"))
+    assert f"{OFFICIAL_WEIGHTS} is not a readable checkpoint" in message
+    assert not ran.exists()
+    if save == "pickle":  # the file is live: loaded unsafely, it runs
+        pickle.loads(path.read_bytes())
+    else:
+        torch.load(path, weights_only=False)
+    assert ran.exists()
 
 
 def test_calibration_errors_name_the_field_and_the_file(tmp_path):

@@ -35,13 +35,15 @@ def test_declares_rgb_in_and_depth_out():
 
 def test_config_is_depth_warps_plus_the_network():
     assert set(DepthWarpConfig.model_fields) < set(MidasWarpConfig.model_fields)
-    assert MidasWarpConfig().weights == "midas-light.pt" and MidasWarpConfig().network == "light"
+    assert MidasWarpConfig().weights == "midas-light.pt" and MidasWarpConfig().network is None  # None: the file's
     for bad in ({"depth_range": (2.0, 1.0)}, {"depth_range": (0.0, 5.0)}, {"network": "dpt"}, {"splat": 0}, {"calibration": ""}):
         with pytest.raises(ValidationError):
             MidasWarpConfig(**bad)
     for name, params in MidasWarp.presets.items():
         assert MidasWarpConfig(**params), name
     assert set(DepthWarp.presets) < set(MidasWarp.presets)
+    assert MidasWarp.presets["v21-small"] == {"weights": "midas_v21_small_256.pt"}  # the file says its network
+    assert [layout.name for layout in MidasWarp.layouts] == ["light", "v21-small"]
     assert all(field.description for field in MidasWarpConfig.model_fields.values())
 
 

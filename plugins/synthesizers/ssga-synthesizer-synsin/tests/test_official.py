@@ -1,4 +1,4 @@
-"""Loading SynSin's released checkpoint layout (``mp3d/synsin.pth``), from a file built here the same way.
+"""Loading SynSin's released checkpoint layout (``mp3d/synsin.pth``), from a file built here the same way, by the file alone.
 
 SynSin saves ``{'state_dict', 'optimizerG', 'epoch', ['optimizerD'], 'opts'}`` (``train.py``),
 with every key under ``model.module.`` (``BaseModel`` around ``nn.DataParallel``), the
@@ -14,6 +14,8 @@ from __future__ import annotations
 
 import argparse
 import copy
+import os
+import pickle
 import warnings
 
 import pytest
@@ -89,7 +91,7 @@ def test_the_file_holds_what_synsins_does(official):
 
 def test_the_official_layout_loads_strictly_and_computes_what_synsin_does(official):
     path, reference, _ = official
-    s = SynSinSynthesizer(SynSinConfig(weights=str(path), network="synsin", device="cpu"))
+    s = SynSinSynthesizer(SynSinConfig(weights=str(path), device="cpu"))
     net = s.net
     assert (s.options.radius, s.options.points_per_pixel, s.options.min_z, s.options.max_z) == (4.0, 128, 0.5, 10.0)
     img = torch.rand(1, 3, 256, 256) * 2 - 1
@@ -128,16 +130,65 @@ def test_mapping_drops_training_modules_and_folds_spectral_norm(official):
         assert abs(float(torch.linalg.matrix_norm(conv.weight_orig.reshape(conv.weight_orig.shape[0], -1), ord=2)) - 1.0) > 0.1
 
 
-def test_an_official_file_with_other_keys_is_one_line(official, tmp_path):
-    path, _, state = official
+def test_the_official_file_alone_names_its_network(official, tmp_path, monkeypatch):
+    """What a user does: weights = the downloaded file, nothing else."""
+    path, _, _ = official
+    s = SynSinSynthesizer(SynSinConfig(weights=str(path), device="cpu"))
+    assert s.config.network == "synsin" and isinstance(s.net, SynSin)
+    copy = pickle.loads(pickle.dumps(s))  # a worker process loads its own network, of the same layout
+    assert copy.config.network == "synsin" and isinstance(copy.net, SynSin) and copy.net is not s.net
+    assert copy.options == s.options
+    # The preset names the file only: the file says its network.
+    assert SynSinSynthesizer.presets["mp3d"] == {"weights": "mp3d/synsin.pth"}
+    (tmp_path / "mp3d").mkdir()
+    (tmp_path / "mp3d" / "synsin.pth").symlink_to(path)
+    monkeypatch.chdir(tmp_path)
+    assert SynSinSynthesizer(SynSinConfig(**SynSinSynthesizer.presets["mp3d"], device="cpu")).config.network == "synsin"
+
+
+def test_a_network_the_file_contradicts_is_one_line_naming_both(official):
+    path, _, _ = official
+    with pytest.raises(CheckpointError) as err:
+        SynSinSynthesizer(SynSinConfig(weights=str(path), network="light"))  # the official file read as the light network
+    message = str(err.value)
+    assert "\n" not in message and message.startswith("synthesizer 'synsin': config field network = 'light' contradicts config field 'weights'")
+    assert "synsin.pth holds the 'synsin' layout (SynSin's released MP3D model" in message and "leave network out" in message
+
+
+def test_an_official_file_with_other_keys_names_the_closest_layout(official, tmp_path):
+    _, _, state = official
     broken = {k: v for k, v in state.items() if "projector.eblocks.7" not in k}
     broken["model.module.modifier.conv1.weight"] = torch.zeros(1)  # the 'modifier' depth predictor: another architecture
     bad = tmp_path / "other.pth"
     torch.save({"state_dict": broken, "opts": OPTS, "epoch": 1, "optimizerG": {}}, bad)
     with pytest.raises(CheckpointError) as err:
-        SynSinSynthesizer(SynSinConfig(weights=str(bad), network="synsin"))
+        SynSinSynthesizer(SynSinConfig(weights=str(bad)))
     message = str(err.value)
-    assert "\n" not in message and "'weights'" in message and "other.pth" in message
-    assert "missing: projector.eblocks.7" in message and "1 unexpected: modifier.conv1.weight" in message
-    with pytest.raises(CheckpointError, match="does not match a light SynSin checkpoint"):
-        SynSinSynthesizer(SynSinConfig(weights=str(path), network="light"))  # the official file read as the light network
+    assert "\n" not in message and "'weights'" in message and "other.pth matches none of the layouts it loads ('light', 'synsin')" in message
+    assert "closest: 'synsin': " in message and "missing: projector.eblocks.7" in message and "1 unexpected: modifier.conv1.weight" in message
+
+
+def test_a_truncated_official_file_is_one_line(official, tmp_path):
+    whole = official[0].read_bytes()
+    cut = tmp_path / "synsin.pth"
+    cut.write_bytes(whole[: len(whole) // 2])
+    with pytest.raises(CheckpointError, match="synsin.pth is not a readable checkpoint") as err:
+        SynSinSynthesizer(SynSinConfig(weights=str(cut)))
+    assert "\n" not in str(err.value)
+
+
+def test_allowing_synsins_options_runs_no_code(official, tmp_path):
+    """SynSin's argparse.Namespace is allowed in; a file that also carries code is still refused, and the code never runs."""
+    ran = tmp_path / "ran"
+
+    class Payload:
+        def __reduce__(self):
+            return (os.system, (f"touch {ran}",))
+
+    path = tmp_path / "synsin.pth"
+    torch.save({"state_dict": official[2], "opts": OPTS, "epoch": 1, "optimizerG": Payload()}, path)
+    with pytest.raises(CheckpointError, match="synsin.pth is not a readable checkpoint") as err:
+        SynSinSynthesizer(SynSinConfig(weights=str(path)))
+    assert "\n" not in str(err.value) and not ran.exists()
+    torch.load(path, weights_only=False)  # the file is live: loaded unsafely, it runs
+    assert ran.exists()

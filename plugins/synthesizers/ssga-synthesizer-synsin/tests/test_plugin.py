@@ -1,9 +1,10 @@
-"""The synsin synthesizer as ssga sees it: registration, contract, point map, caveat, loading errors, packaged weights."""
+"""The synsin synthesizer as ssga sees it: registration, contract, point map, caveat, the layout a file names, loading errors, packaged weights."""
 
 from __future__ import annotations
 
 import hashlib
 import json
+import os
 import pickle
 
 import numpy as np
@@ -143,7 +144,7 @@ def test_random_weights_caveat_reaches_the_variant_label(ssga_installed_registry
 
 def test_config_is_validated():
     assert SynSinConfig() == SynSinConfig(
-        weights=LIGHT_WEIGHTS, network="light", radius=None, points_per_pixel=None, depth_tolerance=0.02, device="auto"
+        weights=LIGHT_WEIGHTS, network=None, radius=None, points_per_pixel=None, depth_tolerance=0.02, device="auto"
     )
     for bad in (
         {"radius": 0.0},
@@ -173,13 +174,44 @@ def test_a_missing_file_is_one_line_naming_the_field_and_the_file(tmp_path):
     assert "\n" not in message and "'weights'" in message and "absent.pth" in message and "synthesizer 'synsin'" in message
 
 
-def test_a_corrupt_file_is_one_line(tmp_path):
-    bad = tmp_path / "corrupt.pth"
-    bad.write_bytes(b"\x80\x02 not a checkpoint")
-    for network in ("light", "synsin"):
-        with pytest.raises(CheckpointError, match="corrupt.pth is not a readable checkpoint") as err:
-            SynSinSynthesizer(SynSinConfig(weights=str(bad), network=network))
-        assert "\n" not in str(err.value) and "'weights'" in str(err.value)
+def test_unreadable_files_are_one_line(tmp_path):
+    (tmp_path / "corrupt.pth").write_bytes(b"\x80\x02 not a checkpoint")
+    (tmp_path / "noise.pth").write_bytes(np.random.default_rng(0).integers(0, 256, 4096, dtype=np.uint8).tobytes())
+    whole = (WEIGHTS_DIR / LIGHT_WEIGHTS).read_bytes()
+    (tmp_path / "truncated.pt").write_bytes(whole[: len(whole) // 2])
+    for name in ("corrupt.pth", "noise.pth", "truncated.pt"):
+        for network in (None, "synsin"):
+            with pytest.raises(CheckpointError, match=f"{name} is not a readable checkpoint") as err:
+                SynSinSynthesizer(SynSinConfig(weights=str(tmp_path / name), network=network))
+            assert "\n" not in str(err.value) and "'weights'" in str(err.value)
+
+
+def test_a_malicious_pickle_never_runs(tmp_path):
+    ran = tmp_path / "ran"
+
+    class Payload:
+        def __reduce__(self):
+            return (os.system, (f"touch {ran}",))
+
+    path = tmp_path / "synsin.pth"
+    path.write_bytes(pickle.dumps({"state_dict": Payload()}, protocol=2))
+    with pytest.raises(CheckpointError, match="synsin.pth is not a readable checkpoint") as err:
+        SynSinSynthesizer(SynSinConfig(weights=str(path)))
+    assert "\n" not in str(err.value) and not ran.exists()
+    pickle.loads(path.read_bytes())  # the file is live: loaded unsafely, it runs
+    assert ran.exists()
+
+
+def test_a_light_file_alone_names_its_network(tmp_path, trained):
+    assert trained.config.network == "light" and SynSinConfig().network is None  # the packaged weights
+    assert pickle.loads(pickle.dumps(trained)).config.network == "light"
+    assert SynSinSynthesizer(RANDOM).config.network == "light"
+    assert SynSinSynthesizer(SynSinConfig(weights="random", network="synsin", device="cpu")).config.network == "synsin"
+    narrow = LightOptions(depth_widths=(8, 16, 16, 16, 16))
+    path = tmp_path / "narrow.pt"  # the widths come with the file, in its opts
+    path.write_bytes(checkpoint_bytes({"state_dict": SynSinLight(narrow).state_dict(), "opts": narrow.to_json()}))
+    s = SynSinSynthesizer(SynSinConfig(weights=str(path), device="cpu"))
+    assert s.config.network == "light" and s.net.light == narrow
 
 
 def test_mismatched_files_are_one_line(tmp_path):
@@ -189,17 +221,22 @@ def test_mismatched_files_are_one_line(tmp_path):
     with pytest.raises(CheckpointError) as err:
         SynSinSynthesizer(SynSinConfig(weights=str(path)))
     message = str(err.value)
-    assert "\n" not in message and "'weights'" in message and "narrow.pt" in message
-    assert "wrong shape: pts_regressor.inc.weight (8, 5, 3, 3) (expected (16, 5, 3, 3))" in message
-    with pytest.raises(
-        CheckpointError, match=r"does not match SynSin's checkpoint layout .* missing: .* unexpected: pts_regressor.inc.weight"
-    ):
+    assert "\n" not in message and "'weights'" in message and "narrow.pt matches none of the layouts it loads ('light', 'synsin')" in message
+    assert "closest: 'light': " in message and "wrong shape: pts_regressor.inc.weight (8, 5, 3, 3) (expected (16, 5, 3, 3))" in message
+    path.write_bytes(checkpoint_bytes({"state_dict": SynSinLight().state_dict(), "opts": LightOptions().to_json()}))
+    with pytest.raises(CheckpointError) as err:
         SynSinSynthesizer(SynSinConfig(weights=str(path), network="synsin"))  # a light file read as the official model
+    message = str(err.value)
+    assert "\n" not in message and "config field network = 'synsin' contradicts config field 'weights'" in message
+    assert "narrow.pt holds the 'light' layout (trained here on procedural homes" in message
     state = SynSinLight().state_dict()
     state["projector.extra.weight"] = torch.zeros(1)
     del state["encoder.0.bias"]
     path.write_bytes(checkpoint_bytes({"state_dict": state, "opts": LightOptions().to_json()}))
-    with pytest.raises(CheckpointError, match=r"1 missing: encoder.0.bias; 1 unexpected: projector.extra.weight"):
+    with pytest.raises(CheckpointError, match=r"closest: 'light': 1 missing: encoder.0.bias; 1 unexpected: projector.extra.weight"):
+        SynSinSynthesizer(SynSinConfig(weights=str(path)))
+    path.write_bytes(checkpoint_bytes({"conv1.weight": torch.zeros(64, 3, 7, 7), "fc.weight": torch.zeros(10, 512)}))  # another model
+    with pytest.raises(CheckpointError, match=r"matches none of the layouts .* closest: 'light': \d+ missing: pts_regressor.inc.weight"):
         SynSinSynthesizer(SynSinConfig(weights=str(path)))
     path.write_bytes(checkpoint_bytes({"state_dict": SynSinLight().state_dict(), "opts": {"depth_widths": [1]}}))
     with pytest.raises(CheckpointError, match="unreadable 'opts'"):

@@ -1,6 +1,6 @@
 """Fit the metric calibration of a MiDaS weights file on procedural homes, and store it beside the file.
 
-    python -m ssga_synthesizer_midas_warp.calibrate --weights midas_v21_small_256.pt --network v21-small
+    python -m ssga_synthesizer_midas_warp.calibrate --weights midas_v21_small_256.pt
 
 renders ``--views`` RGB-D views of each calibration home (procedural seeds
 :data:`~.homes.CALIBRATION_SEEDS`, 2100-2103: never trained on, never evaluated),
@@ -8,8 +8,9 @@ predicts their relative inverse depth, and fits ``1 / z = s * pred + t`` robustl
 (:func:`~.calibration.fit_inverse_depth`) over ``--pixels`` random valid pixels of each
 view. The result, with the SHA-256 of the weights and how it was made, is written to
 ``<weights stem>.calibration.json`` beside the weights (or ``--out``), where the
-synthesizer's ``calibration = "auto"`` finds it. The training command calls the same
-:func:`calibrate` on its exported weights.
+synthesizer's ``calibration = "auto"`` finds it, recorded for the network the file holds
+(its keys and shapes say which). The training command calls the same :func:`calibrate`
+on its exported weights.
 """
 
 from __future__ import annotations
@@ -85,7 +86,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     parser = argparse.ArgumentParser(prog="python -m ssga_synthesizer_midas_warp.calibrate", description=__doc__.split("\n\n")[0])
     parser.add_argument("--weights", required=True, help="weights file (relative: the plugin's weights/ folder, then here)")
-    parser.add_argument("--network", default="light", choices=["light", "v21-small"])
+    parser.add_argument("--network", default=None, choices=["light", "v21-small"], help="default: the weights file's (its keys and shapes)")
     parser.add_argument("--views", type=int, default=50, help="views per calibration home (default 50)")
     parser.add_argument("--pixels", type=int, default=PIXELS_PER_VIEW, help=f"pixels per view (default {PIXELS_PER_VIEW})")
     parser.add_argument("--cache", type=Path, default=Path("runs/midas-calibration"), help="where rendered views are cached")
@@ -98,7 +99,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         weights = synthesizer.weights_file(Path(__file__).parent / "weights").resolve()
         views = cached_views(args.cache, CALIBRATION_SEEDS, args.views, progress=print)
         command = "python -m ssga_synthesizer_midas_warp.calibrate " + shlex.join(sys.argv[1:] if argv is None else list(argv))
-        cal = calibrate(synthesizer.net, args.network, weights.name, sha256_file(weights), views.rgb, views.depth, seeds=CALIBRATION_SEEDS, pixels=args.pixels, command=command)
+        network = synthesizer.config.network  # the file's, resolved when it loaded
+        cal = calibrate(synthesizer.net, network, weights.name, sha256_file(weights), views.rgb, views.depth, seeds=CALIBRATION_SEEDS, pixels=args.pixels, command=command)
         out = args.out or calibration_path(weights)
         cal.write(out)
     except SsgaError as exc:

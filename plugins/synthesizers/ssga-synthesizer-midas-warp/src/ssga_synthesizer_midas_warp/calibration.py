@@ -159,7 +159,7 @@ class Calibration:
         if not path.is_file():
             raise MissingWeightsError(
                 f"{who}: config field 'calibration': {path}: no such file; make it with "
-                f"'python -m ssga_synthesizer_midas_warp.calibrate --weights <file> --network <name>', or set calibration = 'minmax'"
+                f"'python -m ssga_synthesizer_midas_warp.calibrate --weights <file>', or set calibration = 'minmax'"
             )
         try:
             data = json.loads(path.read_text())

@@ -16,7 +16,7 @@ Middlebury 2014 "Motorcycle" as scikit-image ships it (``skimage.data.stereo_mot
 741 x 500, the left image): depth ``z = B f / (d + doffs)`` with f = 994.978 px,
 B = 193.001 mm, doffs = 31.086 px (calib.txt / 4); missing disparity (+inf) is excluded.
 
-    python -m ssga_synthesizer_midas_warp.evaluate [--weights FILE --network NAME]
+    python -m ssga_synthesizer_midas_warp.evaluate [--weights FILE]
 """
 
 from __future__ import annotations
@@ -108,7 +108,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     parser = argparse.ArgumentParser(prog="python -m ssga_synthesizer_midas_warp.evaluate", description=__doc__.split("\n\n")[0])
     parser.add_argument("--weights", default=None, help="weights file (default: the packaged light network)")
-    parser.add_argument("--network", default="light", choices=["light", "v21-small"])
+    parser.add_argument("--network", default=None, choices=["light", "v21-small"], help="default: the weights file's (its keys and shapes)")
     parser.add_argument("--views", type=int, default=50, help="views per held-out home (default 50)")
     parser.add_argument("--cache", type=Path, default=Path("runs/midas-eval"), help="where rendered held-out views are cached")
     parser.add_argument("--threads", type=int, default=1)

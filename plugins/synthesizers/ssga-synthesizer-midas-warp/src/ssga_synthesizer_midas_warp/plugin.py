@@ -10,9 +10,10 @@ view carries the metric depth it was rendered with, so several views fuse.
 Weights: the default is the light network trained here on procedural homes the
 benchmark never shows (``weights/midas-light.pt``, calibrated in
 ``weights/midas-light.calibration.json``; how both were made: the README and
-``weights/midas-light.json``); preset ``v21-small`` selects the official MiDaS v2.1
-small file, which the user places and calibrates (``python -m
-ssga_synthesizer_midas_warp.calibrate``).
+``weights/midas-light.json``). The official MiDaS v2.1 small file, which the user places
+and calibrates (``python -m ssga_synthesizer_midas_warp.calibrate``), loads by itself
+(``weights = "midas_v21_small_256.pt"``; preset ``v21-small``): its keys and shapes say
+its network (:data:`LAYOUTS`).
 """
 
 from __future__ import annotations
@@ -27,7 +28,17 @@ import numpy as np
 from pydantic import Field, model_validator
 
 from ssga_core import Data, Pose, Synthesis, Synthesizer, View, hookimpl
-from ssga_bench import RANDOM_WEIGHTS, Learned, LearnedConfig, load_checkpoint, load_strict
+from ssga_bench import (
+    RANDOM_WEIGHTS,
+    Layout,
+    Learned,
+    LearnedConfig,
+    load_checkpoint,
+    load_strict,
+    meta_shapes,
+    read_layout,
+    tensor_state,
+)
 from ssga_synthesizer_depth_warp.plugin import DepthWarp, DepthWarpConfig
 from ssga_synthesizer_midas_warp.calibration import Calibration, calibration_path, minmax_depth, sha256_file
 
@@ -42,6 +53,18 @@ RANDOM_SEED = 0
 
 AUTO, MINMAX = "auto", "minmax"
 
+OFFICIAL_WEIGHTS = "midas_v21_small_256.pt"
+"""MiDaS v2.1 small's release file, as isl-org/MiDaS names it (not shipped)."""
+
+LAYOUTS = (
+    Layout("light", f"trained here on procedural homes: weights/{LIGHT_WEIGHTS}, the default"),
+    Layout("v21-small", f"the official MiDaS v2.1 small release (isl-org/MiDaS, v2_1): {OFFICIAL_WEIGHTS}"),
+)
+"""The networks a ``weights`` file can hold; which one, the file's keys and shapes say."""
+
+RANDOM_NETWORK = "light"
+"""The network random weights build (tests only), where the config leaves it out."""
+
 
 class MidasWarpConfig(DepthWarpConfig, LearnedConfig):
     """MiDaS's network, weights and calibration; the warp's fields are depth-warp's."""
@@ -50,12 +73,13 @@ class MidasWarpConfig(DepthWarpConfig, LearnedConfig):
         default=LIGHT_WEIGHTS,
         min_length=1,
         description="Checkpoint (relative: the plugin's weights/ folder, then the working directory): the light network trained "
-        "here (default), the official 'midas_v21_small_256.pt' (network = 'v21-small'), or 'random' (tests only).",
+        "here (default), the official 'midas_v21_small_256.pt', or 'random' (tests only).",
     )
-    network: Literal["light", "v21-small"] = Field(
-        default="light",
+    network: Literal["light", "v21-small"] | None = Field(
+        default=None,
         description="'light': the narrow MiDaS-small trained here (the packaged weights); 'v21-small': MiDaS v2.1 small "
-        "(EfficientNet-Lite3, 64 features), the official file's layout. Must match the weights.",
+        "(EfficientNet-Lite3, 64 features), the official file's layout. Left out: the weights file's, read from its keys "
+        "and shapes ('light' for random weights); set, the file must hold it.",
     )
     calibration: str = Field(
         default=AUTO,
@@ -96,10 +120,12 @@ class MidasWarp(Learned, DepthWarp):
     Config = MidasWarpConfig
     consumes = frozenset({Data.RGB})
     produces = frozenset({Data.RGB, Data.DEPTH, Data.POINT_MAP})
+    layouts = LAYOUTS
+    packaged_weights = WEIGHTS_DIR
     presets = {
         **DepthWarp.presets,
         "light": {},
-        "v21-small": {"network": "v21-small", "weights": "midas_v21_small_256.pt"},
+        "v21-small": {"weights": OFFICIAL_WEIGHTS},
     }
 
     def __init__(self, config: MidasWarpConfig | None = None) -> None:
@@ -115,8 +141,8 @@ class MidasWarp(Learned, DepthWarp):
     # ------------------------------------------------------------------ loading
 
     def _load(self) -> tuple[Any, Calibration | None]:
-        from ssga_synthesizer_midas_warp.model import NETWORKS, MidasNet, init_weights
-
+        """The network, once per process per file, and its calibration; ``self.config`` gets the file's ``network``
+        first, which the calibration is checked against."""
         cfg: MidasWarpConfig = self.config  # type: ignore[assignment]
         device = self.device
         if self.random_weights:
@@ -128,32 +154,40 @@ class MidasWarp(Learned, DepthWarp):
             key = (str(path), stat.st_mtime_ns, stat.st_size, cfg.network, str(device))
         with _NETWORKS_LOCK:
             if key not in _NETWORKS:
-                if path is None:  # the training's seeded initialisation: the same in every process, its output positive and varied
-                    net, sha = init_weights(MidasNet(NETWORKS[cfg.network]), RANDOM_SEED), ""
-                else:
-                    net, sha = self._from_file(path), sha256_file(path)
-                _NETWORKS[key] = (net.to(device).eval(), sha)
-            net, sha = _NETWORKS[key]
+                net, fields = self._random() if path is None else self._from_file(path)
+                _NETWORKS[key] = (net.to(device).eval(), fields, "" if path is None else sha256_file(path))
+            net, fields, sha = _NETWORKS[key]
+        self.config = cfg.model_copy(update=fields)
         return net, self._calibration(path, sha)
 
-    def _from_file(self, path: Path):
+    def _random(self) -> tuple[Any, dict[str, Any]]:
+        """The training's seeded initialisation: the same in every process, its output positive and varied."""
+        from ssga_synthesizer_midas_warp.model import NETWORKS, MidasNet, init_weights
+
+        cfg: MidasWarpConfig = self.config  # type: ignore[assignment]
+        fields = {"network": cfg.network or RANDOM_NETWORK}
+        return init_weights(MidasNet(NETWORKS[fields["network"]]), RANDOM_SEED), fields
+
+    def _from_file(self, path: Path) -> tuple[Any, dict[str, Any]]:
         from ssga_synthesizer_midas_warp.model import NETWORKS, MidasNet
 
         cfg: MidasWarpConfig = self.config  # type: ignore[assignment]
-        net = MidasNet(NETWORKS[cfg.network])
         expected = (
-            f"a MiDaS-small state dict of the {cfg.network!r} network (pretrained.*, scratch.*; {len(net.state_dict())} keys), "
+            "a MiDaS-small state dict (pretrained.*, scratch.*) of the 'light' or 'v21-small' network, "
             "plain or under 'state_dict' or 'model'"
         )
         checkpoint = load_checkpoint(path, self.who, expected)
-        state = checkpoint
-        if isinstance(checkpoint, dict):
-            for wrapper in ("state_dict", "model"):  # ours, and MiDaS's training format {'model', 'optimizer'}
-                if isinstance(checkpoint.get(wrapper), dict):
-                    state = checkpoint[wrapper]
-                    break
+        state = tensor_state(_unwrapped(checkpoint), self.who, path, expected)
+        _, fields = read_layout(cfg, state, LAYOUTS, self._network_of, self.who, path)
+        net = MidasNet(NETWORKS[fields["network"]])
         load_strict(net, state, self.who, path, expected)
-        return net
+        return net, fields
+
+    def _network_of(self, layout: Layout, state: Any) -> tuple[dict[str, Any], dict[str, tuple[int, ...]]]:
+        """The fields and keys and shapes of ``layout``'s network (MiDaS-small has no size to read from the file)."""
+        from ssga_synthesizer_midas_warp.model import NETWORKS, MidasNet
+
+        return {"network": layout.name}, meta_shapes(lambda: MidasNet(NETWORKS[layout.name]))
 
     def _calibration(self, weights: Path | None, sha: str) -> Calibration | None:
         """The calibration to use, or ``None`` for the per-image min/max prior."""
@@ -213,6 +247,16 @@ class MidasWarp(Learned, DepthWarp):
     def _synthesize_from(self, views: Sequence[View], target: Pose) -> list[Synthesis]:
         """depth-warp's joint render of the views with their estimated depth."""
         return super()._synthesize_from(self.with_depth(views), target)
+
+
+def _unwrapped(checkpoint: Any) -> Any:
+    """The state dict in ``checkpoint``: plain, or under 'state_dict' (ours) or 'model' (MiDaS's training format
+    ``{'model', 'optimizer'}``)."""
+    if isinstance(checkpoint, dict):
+        for wrapper in ("state_dict", "model"):
+            if isinstance(checkpoint.get(wrapper), dict):
+                return checkpoint[wrapper]
+    return checkpoint
 
 
 @hookimpl

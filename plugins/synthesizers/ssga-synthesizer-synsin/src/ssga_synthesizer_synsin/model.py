@@ -28,7 +28,7 @@ from __future__ import annotations
 
 import argparse
 import itertools
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
@@ -455,8 +455,8 @@ def spectral_weight(weight_orig: torch.Tensor, u: torch.Tensor, v: torch.Tensor)
     return weight_orig / sigma
 
 
-def official_state_dict(state: Mapping[str, Any], own: Mapping[str, torch.Tensor]) -> tuple[dict[str, Any], dict[str, int]]:
-    """An official SynSin state dict in :class:`SynSin`'s key layout, and what was done to it.
+def official_state_dict(state: Mapping[str, Any], own: Iterable[str]) -> tuple[dict[str, Any], dict[str, int]]:
+    """An official SynSin state dict in :class:`SynSin`'s key layout (``own``: its keys), and what was done to it.
 
     * keys lose the ``model.module.`` prefix (``BaseModel`` around ``nn.DataParallel``);
     * keys under :data:`DROPPED_PREFIXES` (the VGG19 perceptual loss, the discriminator)
@@ -482,9 +482,9 @@ def official_state_dict(state: Mapping[str, Any], own: Mapping[str, torch.Tensor
         if isinstance(u, torch.Tensor) and isinstance(v, torch.Tensor) and isinstance(out[key], torch.Tensor):
             out[base] = spectral_weight(out.pop(key).float(), out.pop(base + "_u").float(), out.pop(base + "_v").float())
             counts["spectral"] += 1
-    for key, value in own.items():
+    for key in own:
         if key.endswith(".num_batches_tracked") and key not in out and key.replace("num_batches_tracked", "running_mean") in out:
-            out[key] = torch.zeros_like(value)
+            out[key] = torch.zeros((), dtype=torch.long)  # as BatchNorm registers it
             counts["filled"] += 1
     return out, counts
 

@@ -10,8 +10,9 @@ refinement pass.
 
 Weights: the light network trained here on procedural homes the benchmark never shows
 (``weights/synsin-light.pt``; how it was made: the README and
-``weights/synsin-light.json``), or SynSin's released MP3D model (preset ``mp3d``:
-``network = "synsin"``, ``weights = "mp3d/synsin.pth"``, which the user downloads).
+``weights/synsin-light.json``), or SynSin's released MP3D model (``weights =
+"mp3d/synsin.pth"``, which the user downloads; preset ``mp3d``). A file names its own
+network: its keys and shapes say which (:data:`LAYOUTS`).
 """
 
 from __future__ import annotations
@@ -26,7 +27,17 @@ from typing import TYPE_CHECKING, Any, Literal
 import numpy as np
 from pydantic import Field
 
-from ssga_bench import RANDOM_WEIGHTS, Learned, LearnedConfig, load_checkpoint, load_strict
+from ssga_bench import (
+    RANDOM_WEIGHTS,
+    Layout,
+    Learned,
+    LearnedConfig,
+    load_checkpoint,
+    load_strict,
+    meta_shapes,
+    read_layout,
+    tensor_state,
+)
 from ssga_core import CheckpointError, Data, InputError, Pose, Synthesis, Synthesizer, View, hookimpl
 
 if TYPE_CHECKING:  # torch and the networks load when a synthesizer is made, not when the plugin registers
@@ -43,8 +54,17 @@ LIGHT_WEIGHTS = "synsin-light.pt"
 OFFICIAL_WEIGHTS = "mp3d/synsin.pth"
 """SynSin's MP3D checkpoint, as its ``download_models.sh`` lays it out (not shipped)."""
 
+LAYOUTS = (
+    Layout("light", f"trained here on procedural homes: weights/{LIGHT_WEIGHTS}, the default"),
+    Layout("synsin", f"SynSin's released MP3D model (facebookresearch/synsin, download_models.sh): {OFFICIAL_WEIGHTS}"),
+)
+"""The networks a ``weights`` file can hold; which one, the file's keys and shapes say."""
+
 RANDOM_SEED = 0
 """Random weights are drawn from this seed: the same in every process."""
+
+RANDOM_NETWORK = "light"
+"""The network random weights build (tests only), where the config leaves it out."""
 
 
 class SynSinConfig(LearnedConfig):
@@ -54,12 +74,13 @@ class SynSinConfig(LearnedConfig):
         default=LIGHT_WEIGHTS,
         min_length=1,
         description="Checkpoint (relative: the plugin's weights/ folder, then the working directory): the light network "
-        "trained here (default), SynSin's 'mp3d/synsin.pth' (network = 'synsin'), or 'random' (tests only).",
+        "trained here (default), SynSin's 'mp3d/synsin.pth', or 'random' (tests only).",
     )
-    network: Literal["light", "synsin"] = Field(
-        default="light",
+    network: Literal["light", "synsin"] | None = Field(
+        default=None,
         description="'light' (this package's network, 0.6 M parameters, the packaged weights) or 'synsin' (the official "
-        "MP3D model's layout: ResNet encoder and decoder of width 64, 32-filter depth U-Net); must match the file.",
+        "MP3D model's layout: ResNet encoder and decoder of width 64, 32-filter depth U-Net). Left out: the weights file's, "
+        "read from its keys and shapes ('light' for random weights); set, the file must hold it.",
     )
     radius: float | None = Field(
         default=None,
@@ -83,7 +104,13 @@ class SynSinConfig(LearnedConfig):
     )
 
 
-_NETWORKS: dict[tuple[Any, ...], torch.nn.Module] = {}
+EXPECTED = (
+    "a SynSin checkpoint ({'state_dict', 'opts'}) of the light network (pts_regressor.*, encoder.*, projector.*) "
+    "or of SynSin's MP3D model (model.module.*: resnet_256W8UpDown64, ngf 64)"
+)
+"""What a ``weights`` file should hold, as errors say it."""
+
+_NETWORKS: dict[tuple[Any, ...], tuple[torch.nn.Module, dict[str, Any]]] = {}
 _LOCK = threading.Lock()
 
 
@@ -94,11 +121,13 @@ class SynSinSynthesizer(Learned, Synthesizer):
     abbrev = "SS"
     Config = SynSinConfig
     reloaded = ("net",)
+    layouts = LAYOUTS
+    packaged_weights = WEIGHTS_DIR
     consumes = frozenset({Data.RGB})
     produces = frozenset({Data.RGB, Data.DEPTH, Data.POINT_MAP})
     presets = {
         "light": {},
-        "mp3d": {"network": "synsin", "weights": OFFICIAL_WEIGHTS},
+        "mp3d": {"weights": OFFICIAL_WEIGHTS},
     }
 
     def __init__(self, config: SynSinConfig | None = None) -> None:
@@ -120,6 +149,7 @@ class SynSinSynthesizer(Learned, Synthesizer):
     # ------------------------------------------------------------------ loading
 
     def _load(self) -> torch.nn.Module:
+        """The network, once per process per file; ``self.config`` gets the file's ``network``."""
         cfg: SynSinConfig = self.config  # type: ignore[assignment]
         device = self.device
         if self.random_weights:
@@ -130,51 +160,58 @@ class SynSinSynthesizer(Learned, Synthesizer):
             key = (str(path), stat.st_mtime_ns, stat.st_size, cfg.network, str(device))
         with _LOCK:
             if key not in _NETWORKS:
-                net = self._random() if self.random_weights else self._from_file(path)
-                _NETWORKS[key] = net.to(device).eval()
-            return _NETWORKS[key]
+                net, fields = self._random() if self.random_weights else self._from_file(path)
+                _NETWORKS[key] = (net.to(device).eval(), fields)
+            net, fields = _NETWORKS[key]
+        self.config = cfg.model_copy(update=fields)
+        return net
 
-    def _random(self) -> torch.nn.Module:
+    def _random(self) -> tuple[torch.nn.Module, dict[str, Any]]:
         import torch
 
-        from ssga_synthesizer_synsin.model import SynSin, SynSinLight
-
         cfg: SynSinConfig = self.config  # type: ignore[assignment]
+        fields = {"network": cfg.network or RANDOM_NETWORK}
         with torch.random.fork_rng(devices=[]):
             torch.manual_seed(RANDOM_SEED)
-            return SynSinLight() if cfg.network == "light" else SynSin()
+            return self._network(fields["network"], None), fields
 
-    def _from_file(self, path: Path) -> torch.nn.Module:
+    def _from_file(self, path: Path) -> tuple[torch.nn.Module, dict[str, Any]]:
         import torch
 
-        from ssga_synthesizer_synsin.model import LightOptions, SynSin, SynSinLight, official_state_dict, options_from_opts
+        from ssga_synthesizer_synsin.model import SynSin, official_state_dict
 
         cfg: SynSinConfig = self.config  # type: ignore[assignment]
-        if cfg.network == "light":
-            expected = "a light SynSin checkpoint ({'state_dict': pts_regressor.*, encoder.*, projector.*, 'opts'})"
-            checkpoint = load_checkpoint(path, self.who, expected)
-            opts = checkpoint.get("opts") if isinstance(checkpoint, dict) else None
-            try:
-                options = LightOptions.from_json(opts) if isinstance(opts, dict) else LightOptions()
-            except (KeyError, TypeError, ValueError) as exc:
-                raise CheckpointError(
-                    f"{self.who}: config field 'weights': {path} has unreadable 'opts' ({exc!r}); expected {expected}"
-                ) from None
-            net: torch.nn.Module = SynSinLight(options)
-            state = checkpoint.get("state_dict", checkpoint) if isinstance(checkpoint, dict) else checkpoint
-            load_strict(net, state, self.who, path, expected)
-            return net
-        expected = "SynSin's checkpoint layout ({'state_dict': model.module.*, 'opts', ...}) of the MP3D model (resnet_256W8UpDown64, ngf 64)"
         # SynSin pickles its options as an argparse.Namespace, which weights_only loading refuses unless allowed.
-        torch.serialization.add_safe_globals([argparse.Namespace])
-        checkpoint = load_checkpoint(path, self.who, expected)
+        with torch.serialization.safe_globals([argparse.Namespace]):
+            checkpoint = load_checkpoint(path, self.who, EXPECTED)
         opts = checkpoint.get("opts") if isinstance(checkpoint, dict) else None
-        net = SynSin(options_from_opts(opts))
         state = checkpoint.get("state_dict", checkpoint) if isinstance(checkpoint, dict) else checkpoint
-        if isinstance(state, dict):
-            state, _ = official_state_dict(state, net.state_dict())
-        load_strict(net, state, self.who, path, expected)
-        return net
+        state = tensor_state(state, self.who, path, EXPECTED)
+        # Both layouts are compared in this package's key space, which SynSin's strict load needs anyway: its
+        # wrapper prefix, training-only modules and spectral norm mapped away (a light file passes unchanged).
+        state, _ = official_state_dict(state, meta_shapes(SynSin))
+        _, fields = read_layout(cfg, state, LAYOUTS, lambda layout, _: self._network_of(layout, opts, path), self.who, path)
+        net = self._network(fields["network"], opts, path)
+        load_strict(net, state, self.who, path, EXPECTED)
+        return net, fields
+
+    def _network_of(self, layout: Layout, opts: Any, path: Path) -> tuple[dict[str, Any], dict[str, tuple[int, ...]]]:
+        """The fields and keys and shapes of ``layout``'s network with the file's options."""
+        return {"network": layout.name}, meta_shapes(lambda: self._network(layout.name, opts, path))
+
+    def _network(self, name: str, opts: Any, path: Path | None = None) -> torch.nn.Module:
+        """The ``name`` network with a file's ``opts``: the light network's widths and renderer (a dict, as it
+        saves them; none: the defaults), SynSin's renderer (its ``argparse.Namespace``)."""
+        from ssga_synthesizer_synsin.model import LightOptions, SynSin, SynSinLight, options_from_opts
+
+        if name != "light":
+            return SynSin(options_from_opts(opts))
+        try:
+            return SynSinLight(LightOptions.from_json(opts) if isinstance(opts, dict) else LightOptions())
+        except (KeyError, TypeError, ValueError) as exc:
+            raise CheckpointError(
+                f"{self.who}: config field 'weights': {path} has unreadable 'opts' ({exc!r}); expected {EXPECTED}"
+            ) from None
 
     # ------------------------------------------------------------------ synthesis
 
