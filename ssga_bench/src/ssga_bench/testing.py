@@ -9,6 +9,7 @@
   busy, two threads wait on each other: 2-3x slower, measured).
 * :func:`network_inputs` and :func:`whole_batches_on_cpu`: what a learned stage's network
   was called with, and its batched path made to run on the CPU too (to test it there).
+* :class:`RunsCode`: what a malicious checkpoint holds, to show a loader never runs it.
 """
 
 from __future__ import annotations
@@ -24,6 +25,19 @@ from pydantic import Field
 from ssga_core import Camera, Data, Pose, StageConfig, View, WorkspaceSource, hookimpl
 from ssga_core.testing import make_panorama_view, make_view
 from ssga_bench.workspace import FloorPlan
+
+
+class RunsCode:
+    """Pickled inside a checkpoint, runs ``command`` in a shell when the file is unpickled
+    unsafely: what a malicious download could hold (``weights_only`` loading refuses it)."""
+
+    def __init__(self, command: str) -> None:
+        self.command = command
+
+    def __reduce__(self) -> tuple[Any, tuple[str]]:
+        import os
+
+        return (os.system, (self.command,))
 
 
 class WallConfig(StageConfig):

@@ -364,21 +364,6 @@ def test_a_file_alone_sets_the_network_it_holds(tmp_path):
     assert CnnRrf(CnnRrfConfig(weights=str(light), cache=False)).config.batch_norm is True
 
 
-def test_a_malicious_pickle_never_runs(tmp_path):
-    import os
-    import pickle as plain
-
-    class Payload:
-        def __reduce__(self):
-            return (os.system, (f"touch {tmp_path / 'ran'}",))
-
-    path = tmp_path / "evil.pt"
-    path.write_bytes(plain.dumps(Payload()))
-    with pytest.raises(CheckpointError, match="evil.pt is not a readable checkpoint"):
-        CnnRrf(CnnRrfConfig(weights=str(path)))
-    assert not (tmp_path / "ran").exists()
-
-
 def test_a_file_is_also_found_in_torchs_hub_cache(tmp_path, monkeypatch):
     hub = tmp_path / "hub"
     (hub / "checkpoints").mkdir(parents=True)

@@ -5,16 +5,18 @@ from __future__ import annotations
 import dataclasses
 import pickle
 import re
+import shlex
 
 import numpy as np
 import pytest
 import torch
 from pydantic import ValidationError
 from ssga_parser_cascade_seg.classes import ADE20K, PROCEDURAL
-from ssga_parser_cascade_seg.model import LIGHT, RESNET18DILATED, SceneParser, init_weights
-from ssga_parser_cascade_seg.plugin import FILES, CascadeSeg, CascadeSegConfig, class_regions
+from ssga_parser_cascade_seg.model import LIGHT, RESNET18DILATED, RESNET50DILATED, SceneParser, init_weights
+from ssga_parser_cascade_seg.plugin import FILES, LAYOUTS, LIGHT_WEIGHTS, CascadeSeg, CascadeSegConfig, class_regions
 
 from ssga_bench import checkpoint_bytes, validate_experiment
+from ssga_bench.testing import RunsCode
 from ssga_core import Camera, CheckpointError, ConfigError, InputError, MissingWeightsError, Pose, Regions, View, resolve_stage
 from ssga_core.testing import check_parser, check_parser_in_all_orders, make_view
 
@@ -154,8 +156,9 @@ def test_views_of_any_size_parse_to_their_own_size():
         ({"image_sizes": [4]}, "greater than or equal to 8"),
         ({"min_region_px": -1}, "greater than or equal to 0"),
         ({"connectivity": 6}, "Input should be 4 or 8"),
-        ({"ignore_classes": ["wal"]}, "'wal' is no class of classes = 'procedural'; did you mean 'wall'"),
-        ({"ignore_classes": ["sky"]}, "'sky' is no class of classes = 'procedural'"),
+        ({"ignore_classes": ["wal"]}, r"'wal' is no class of any vocabulary \('ade20k', 'procedural'\); did you mean 'wall'"),
+        ({"classes": "procedural", "ignore_classes": ["wal"]}, "'wal' is no class of classes = 'procedural'; did you mean 'wall'"),
+        ({"classes": "procedural", "ignore_classes": ["sky"]}, "'sky' is no class of classes = 'procedural'"),
         ({"weights": ""}, "at least 1 character"),
         ({"device": "tpu"}, "Input should be 'auto', 'cpu' or 'cuda'"),
         ({"classes_file": "x"}, "Extra inputs are not permitted"),
@@ -171,13 +174,25 @@ def test_ade20k_class_names_validate_against_their_vocabulary():
     assert len(ADE20K) == len(set(ADE20K)) == 150 and ADE20K[:4] == ("wall", "building", "sky", "floor") and ADE20K[-1] == "flag"
 
 
+def test_ignored_classes_are_checked_against_the_weights_vocabulary_when_classes_is_left_out():
+    config = CascadeSegConfig(device="cpu", ignore_classes=["sky"])  # an ADE20K class: fine until the weights say otherwise
+    with pytest.raises(CheckpointError) as err:
+        CascadeSeg(config)
+    message = str(err.value)
+    assert "\n" not in message and "config field 'ignore_classes': 'sky' is no class of classes = 'procedural'" in message
+    assert f"the vocabulary of config field 'weights' = {LIGHT_WEIGHTS!r}" in message
+    assert CascadeSeg(CascadeSegConfig(device="cpu", ignore_classes=["wall"]))._ignored.tolist() == [0]
+
+
 def test_presets_resolve_and_name_the_release_folders(ssga_installed_registry, tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
     for preset, params in CascadeSeg.presets.items():
         assert CascadeSegConfig(**params), preset
     stage = resolve_stage("parser", {"name": "cascade-seg", "preset": "ade20k-resnet50dilated-ppm_deepsup", "image_sizes": [450]}, ssga_installed_registry)
     config = stage.config
-    assert (config.network, config.classes, config.weights, config.image_sizes) == ("resnet50dilated", "ade20k", "ade20k-resnet50dilated-ppm_deepsup", (450,))
+    assert (config.weights, config.image_sizes) == ("ade20k-resnet50dilated-ppm_deepsup", (450,))
+    assert (config.network, config.classes) == (None, None), "the files say them"
+    assert not any({"network", "classes"} & set(params) for params in CascadeSeg.presets.values())
     assert CascadeSeg.presets["ade20k-resnet18dilated-ppm_deepsup"]["image_sizes"] == (300, 375, 450, 525, 600)
     with pytest.raises(MissingWeightsError, match=r"'weights' = 'ade20k-resnet50dilated-ppm_deepsup': no such folder .*encoder_epoch_20\.pth and decoder_epoch_20\.pth"):
         stage.create()
@@ -238,28 +253,52 @@ def test_a_missing_folder_or_file_is_one_line_naming_the_field(tmp_path):
         assert "\n" not in text and "parser 'cascade-seg': config field 'weights'" in text and message in text, text
 
 
-def test_an_unreadable_file_is_one_line(tmp_path):
+def _truncated(path):
+    data = checkpoint_bytes(trained_like().decoder.state_dict())
+    path.write_bytes(data[: len(data) // 2])
+
+
+def _random_bytes(path):
+    path.write_bytes(np.random.default_rng(0).bytes(4096))
+
+
+def _malicious(path):
+    torch.save({"state_dict": {"conv_last.4.weight": RunsCode(f"touch {shlex.quote(str(path.parent / 'ran'))}")}}, path)
+
+
+@pytest.mark.parametrize("damage", [_truncated, _random_bytes, _malicious, lambda path: path.write_bytes(b"not a checkpoint")])
+def test_a_broken_or_malicious_file_is_one_line_and_never_runs(tmp_path, damage):
     folder = save_release(tmp_path / "r", trained_like())
-    (folder / FILES["decoder"]).write_bytes(b"not a checkpoint")
-    with pytest.raises(CheckpointError, match=r"decoder_epoch_20\.pth is not a readable checkpoint") as err:
+    damage(folder / FILES["decoder"])
+    with pytest.raises(CheckpointError) as err:
+        CascadeSeg(CascadeSegConfig(weights=str(folder), device="cpu"))
+    message = str(err.value)
+    assert "\n" not in message and "Traceback" not in message and not isinstance(err.value, MissingWeightsError)
+    assert f"config field 'weights': {folder / FILES['decoder']} is not a readable checkpoint" in message, message
+    assert not (folder / "ran").exists(), "weights_only: the pickle's code never runs"
+
+
+def test_a_readable_file_of_no_tensors_is_one_line(tmp_path):
+    folder = save_release(tmp_path / "r", trained_like())
+    (folder / FILES["decoder"]).write_bytes(checkpoint_bytes({"state_dict": {"epoch": 20}}))
+    with pytest.raises(CheckpointError, match=r"decoder_epoch_20\.pth holds no state dict of tensors; expected the encoder or decoder") as err:
         CascadeSeg(CascadeSegConfig(weights=str(folder), device="cpu"))
     assert "\n" not in str(err.value)
-    # weights_only: a file that pickles an object (not tensors) is refused, not executed.
-    import argparse
-
-    torch.save({"state_dict": argparse.Namespace(a=1)}, folder / FILES["decoder"])
-    with pytest.raises(CheckpointError, match="not a readable checkpoint"):
-        CascadeSeg(CascadeSegConfig(weights=str(folder), device="cpu"))
 
 
 @pytest.mark.parametrize(
     ("edit", "part", "message"),
     [
-        (lambda s: s.pop("layer4.1.conv2.weight"), "encoder", r"1 missing: layer4\.1\.conv2\.weight"),
-        (lambda s: s.update({"fc.weight": torch.zeros(1000, 128)}), "encoder", r"1 unexpected: fc\.weight"),
-        (lambda s: s.update({"conv1._tmp_running_mean": torch.zeros(16)}), "encoder", r"1 unexpected: conv1\._tmp_running_mean"),
-        (lambda s: s.update({"conv_last.4.weight": torch.zeros(150, 64, 1, 1)}), "decoder", r"1 wrong shape: conv_last\.4\.weight \(150, 64, 1, 1\)"),
-        (lambda s: s.pop("conv_last_deepsup.weight"), "decoder", r"1 missing: conv_last_deepsup\.weight"),
+        (lambda s: s.pop("layer4.1.conv2.weight"), "encoder", r"1 missing: encoder_epoch_20\.pth:layer4\.1\.conv2\.weight"),
+        (lambda s: s.update({"fc.weight": torch.zeros(1000, 128)}), "encoder", r"1 unexpected: encoder_epoch_20\.pth:fc\.weight"),
+        (lambda s: s.update({"conv1._tmp_running_mean": torch.zeros(16)}), "encoder", r"1 unexpected: encoder_epoch_20\.pth:conv1\._tmp_running_mean"),
+        # 20 classes: no vocabulary's count, so the layer is of the wrong shape for the default's 13.
+        (
+            lambda s: s.update({"conv_last.4.weight": torch.zeros(20, 64, 1, 1)}),
+            "decoder",
+            r"1 wrong shape: decoder_epoch_20\.pth:conv_last\.4\.weight \(20, 64, 1, 1\) \(expected \(13, 64, 1, 1\)\)",
+        ),
+        (lambda s: s.pop("conv_last_deepsup.weight"), "decoder", r"1 missing: decoder_epoch_20\.pth:conv_last_deepsup\.weight"),
     ],
 )
 def test_every_other_key_is_strict(tmp_path, edit, part, message):
@@ -271,20 +310,88 @@ def test_every_other_key_is_strict(tmp_path, edit, part, message):
     with pytest.raises(CheckpointError) as err:
         CascadeSeg(CascadeSegConfig(weights=str(folder), device="cpu"))
     text = str(err.value)
-    assert "\n" not in text and f"{FILES[part]} does not match the {part} of the 'light' network" in text
-    assert re.search(message, text), text
+    assert "\n" not in text and f"config field 'weights': {folder} matches none of the layouts it loads" in text
+    assert "closest: 'light': " in text and re.search(message, text), text
 
 
-def test_a_layout_or_vocabulary_mismatch_is_named(tmp_path):
-    r18 = save_release(tmp_path / "r18", init_weights(SceneParser(RESNET18DILATED, len(ADE20K)), 0))
-    with pytest.raises(CheckpointError, match=r"encoder_epoch_20\.pth does not match the encoder of the 'light' network"):
-        CascadeSeg(CascadeSegConfig(weights=str(r18), device="cpu"))
-    loaded = CascadeSeg(CascadeSegConfig(weights=str(r18), network="resnet18dilated", classes="ade20k", device="cpu", image_sizes=(64,)))
-    assert loaded.net.decoder.conv_last[4].out_channels == 150
+@pytest.fixture(scope="module")
+def resnet50_release(tmp_path_factory):
+    """An official ResNet50-dilated release folder as CSAIL publishes it (raw state dicts under the release's
+    file names), its values random: our network in the official layout with ADE20K's 150 classes."""
+    torch.manual_seed(0)
+    return save_release(tmp_path_factory.mktemp("official") / "ade20k-resnet50dilated-ppm_deepsup", SceneParser(RESNET50DILATED, len(ADE20K)))
+
+
+def test_an_official_release_alone_names_its_network_and_classes(resnet50_release):
+    # What a user does: weights = the downloaded folder, nothing else.
+    parser = CascadeSeg(CascadeSegConfig(weights=str(resnet50_release), device="cpu", image_sizes=(64,)))
+    assert (parser.config.network, parser.config.classes) == ("resnet50dilated", "ade20k")
+    assert parser.class_names == ADE20K and parser.net.decoder.conv_last[4].out_channels == 150
+    assert set(parser.parse(make_view(size=64)).names) <= set(ADE20K)
+    copy = pickle.loads(pickle.dumps(parser))  # a worker process loads the same network
+    assert (copy.config.network, copy.config.classes, copy.class_names) == ("resnet50dilated", "ade20k", ADE20K)
+    light = CascadeSeg(CascadeSegConfig(device="cpu"))
+    assert (light.config.network, light.config.classes, light.class_names) == ("light", "procedural", PROCEDURAL)
+    random = CascadeSeg(RANDOM)
+    assert (random.config.network, random.config.classes) == ("light", "procedural")
+
+
+def test_ssga_parse_takes_an_official_release_by_weights_alone(resnet50_release, tmp_path, ssga_installed_registry):
+    """The command that failed with "does not match the encoder of the 'light' network" unless a preset named the network."""
+    import cv2
+    from typer.testing import CliRunner
+
+    from ssga_core.cli import app_with_plugin_commands
+
+    cv2.imwrite(str(tmp_path / "wall.png"), make_view(seed=3, size=64).rgb[:, :, ::-1])
+    app, runner = app_with_plugin_commands(), CliRunner()
+    common = ["parse", str(tmp_path / "wall.png"), "--parser", "cascade-seg", "-o", f"weights={resnet50_release}", "-o", "device=cpu", "--executor", "serial"]
+    result = runner.invoke(app, [*common, "--out", str(tmp_path / "out")])
+    assert result.exit_code == 0, result.output
+    assert (tmp_path / "out" / "wall.regions.json").exists()
+    wrong = runner.invoke(app, [*common, "-o", "network=light", "--out", str(tmp_path / "wrong")])
+    assert wrong.exit_code == 1 and "Traceback" not in wrong.output
+    lines = wrong.stderr.strip().splitlines()
+    assert len(lines) == 1 and "config field network = 'light' contradicts config field 'weights'" in lines[0], wrong.stderr
+
+
+def test_a_config_that_contradicts_the_files_is_one_line_naming_both(tmp_path, resnet50_release):
+    with pytest.raises(CheckpointError) as err:
+        CascadeSeg(CascadeSegConfig(weights=str(resnet50_release), network="light", device="cpu"))
+    message = str(err.value)
+    assert "\n" not in message and str(resnet50_release) in message
+    assert "config field network = 'light' contradicts config field 'weights'" in message and "holds the 'resnet50dilated' layout" in message
+    assert "(CSAIL's ADE20K release, the paper's" in message and "leave network out to take the file's" in message
+    with pytest.raises(CheckpointError, match=r"classes = 'procedural' contradicts .* with classes = 'ade20k'; leave classes out"):
+        CascadeSeg(CascadeSegConfig(weights=str(resnet50_release), classes="procedural", device="cpu"))
+    both = CascadeSegConfig(weights=str(resnet50_release), network="resnet18dilated", classes="procedural", device="cpu")
+    with pytest.raises(CheckpointError, match=r"config fields network = 'resnet18dilated', classes = 'procedural' contradict config field 'weights'"):
+        CascadeSeg(both)
+    # Our own files say what they hold, and their keys and shapes say the same.
     ours = save_release(tmp_path / "ours", trained_like(), wrap={"network": "light", "classes": "procedural"})
-    with pytest.raises(CheckpointError, match="holds classes = 'procedural'; set classes = 'procedural'"):
+    with pytest.raises(CheckpointError, match="classes = 'ade20k' contradicts config field 'weights': .* holds the 'light' layout"):
         CascadeSeg(CascadeSegConfig(weights=str(ours), classes="ade20k", device="cpu"))
     assert len(CascadeSeg(CascadeSegConfig(weights=str(ours), device="cpu")).parse(make_view(size=64))) > 0
+
+
+def test_files_of_no_known_layout_name_the_closest_and_its_first_differences(tmp_path):
+    names = ", ".join(repr(layout.name) for layout in LAYOUTS)
+    # A light encoder beside a ResNet18-dilated decoder: each file alone is of a known network, the pair is none.
+    mixed = save_release(tmp_path / "mixed", trained_like())
+    r18 = save_release(tmp_path / "r18", init_weights(SceneParser(RESNET18DILATED, len(ADE20K)), 0))
+    (mixed / FILES["decoder"]).write_bytes((r18 / FILES["decoder"]).read_bytes())
+    with pytest.raises(CheckpointError) as err:
+        CascadeSeg(CascadeSegConfig(weights=str(mixed), device="cpu"))
+    message = str(err.value)
+    assert "\n" not in message and f"{mixed} matches none of the layouts it loads ({names}); closest: " in message
+    assert re.search(r"closest: '(light|resnet18dilated)': \d+ wrong shape: (en|de)coder_epoch_20\.pth:", message), message
+    # Another network altogether (an ImageNet classifier's keys).
+    other = tmp_path / "other"
+    other.mkdir()
+    for name in FILES.values():
+        (other / name).write_bytes(checkpoint_bytes({"conv1.weight": torch.zeros(64, 3, 7, 7), "fc.weight": torch.zeros(10, 512)}))
+    with pytest.raises(CheckpointError, match=rf"{other} matches none of the layouts it loads \({names}\); closest: '\w+': \d+ missing: "):
+        CascadeSeg(CascadeSegConfig(weights=str(other), device="cpu"))
 
 
 def test_random_weights_are_the_same_in_every_instance_and_after_pickling():

@@ -76,7 +76,9 @@ def test_official_modules_load_strictly_and_agree(tmp_path, network):
     # REFERENCE §5's counts, from CSAIL's modules (synchronized batch norm buffers included).
     counts = {"resnet18dilated": 207, "resnet50dilated": 495}
     assert (len(encoder.state_dict()), len(decoder.state_dict())) == (counts[network], 58)
-    parser = CascadeSeg(CascadeSegConfig(weights=str(release(tmp_path, encoder, decoder)), network=network, classes="ade20k", device="cpu", image_sizes=(64,)))
+    # The files alone: their keys and shapes say the network and the vocabulary.
+    parser = CascadeSeg(CascadeSegConfig(weights=str(release(tmp_path, encoder, decoder)), device="cpu", image_sizes=(64,)))
+    assert (parser.config.network, parser.config.classes) == (network, "ade20k")
     rgb = make_view(seed=6, size=64).rgb
     # One scale at the image's own size: no resizing, so the networks alone are compared (measured: identical).
     np.testing.assert_allclose(parser.probabilities(rgb), csail_test(encoder, decoder, rgb, (64,)), atol=1e-6)

@@ -146,11 +146,11 @@ def test_plain_batch_norm_state_drops_only_batch_norm_bookkeeping():
     state = net.encoder.state_dict()
     plain = {k: v for k, v in state.items() if not k.endswith("num_batches_tracked")}
     for given in (state, plain, with_sync_bn_buffers(state), with_sync_bn_buffers(plain)):
-        cleaned = plain_batch_norm_state(given, net.encoder)
+        cleaned = plain_batch_norm_state(given)
         assert cleaned.keys() == state.keys()
         net.encoder.load_state_dict(cleaned, strict=True)
     stray = {**state, "conv1._tmp_running_mean": torch.zeros(16), "layer1.0.bn1.extra": torch.zeros(1)}
-    assert set(plain_batch_norm_state(stray, net.encoder)) - set(state) == {"conv1._tmp_running_mean", "layer1.0.bn1.extra"}
+    assert set(plain_batch_norm_state(stray)) - set(state) == {"conv1._tmp_running_mean", "layer1.0.bn1.extra"}
 
 
 def test_every_network_builds():

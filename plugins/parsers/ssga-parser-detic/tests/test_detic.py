@@ -4,21 +4,33 @@ from __future__ import annotations
 
 import json
 import pickle
+import shlex
 
 import numpy as np
 import pytest
 import torch
 from pydantic import ValidationError
-from ssga_bench.testing import WallWorkspaceSource
+from ssga_bench.testing import RunsCode, WallWorkspaceSource
 from ssga_core.testing import check_parser, check_parser_in_all_orders, make_view
 from ssga_core.testing import stages as stand_in_stages
 from ssga_core.testing.stages import ShiftWarp
 from ssga_parser_detic.checkpoint import ZS_WEIGHT_KEYS
 from ssga_parser_detic.model import DeticR50, detect, init_random
-from ssga_parser_detic.plugin import R50_CHECKPOINT, R50_URL, DeticConfig, DeticParser, owners, pixel_centre_boxes
+from ssga_parser_detic.plugin import (
+    LAYOUTS,
+    LVIS_EMBEDDINGS,
+    LVIS_NAMES,
+    R50_CHECKPOINT,
+    R50_URL,
+    DeticConfig,
+    DeticParser,
+    owners,
+    pixel_centre_boxes,
+)
 
 from ssga_bench import ProtocolConfig, build_dataset, checkpoint_bytes, run_experiment, validate_experiment
 from ssga_core import CheckpointError, ConfigError, MissingWeightsError, Pose, resolve_stage
+from ssga_core.plugins import plugin_rows
 
 
 @pytest.fixture(scope="module")
@@ -38,6 +50,8 @@ def test_is_installed_and_registered(ssga_installed_registry):
     assert entry.cls is DeticParser
     assert entry.plugin.distribution == "ssga-parser-detic"
     assert DeticParser.tag() == "DE"
+    row = next(r for r in plugin_rows(ssga_installed_registry) if r["name"] == "detic")
+    assert [layout["name"] for layout in row["layouts"]] == ["resnet50-in21k"] and R50_URL in row["layouts"][0]["source"]
 
 
 def test_meets_the_parser_contract(parser):
@@ -165,23 +179,28 @@ def test_lvis_category_files_give_names_in_id_order(vocabulary_dir, tmp_path):
     assert DeticParser(DeticConfig(weights="random", vocabulary=str(vocabulary_dir / "vocab.npy"), class_names=str(path))).names[-1] == "n39"
 
 
-def test_a_released_checkpoint_loads_with_the_vocabulary_beside_it(vocabulary_dir, tmp_path, config):
-    """A detectron2 checkpoint (with its bookkeeping and training vocabulary) of other weights, the vocabulary next
-    to it by relative name: the loaded network is the saved one, and parses as the network it was saved from."""
+def test_the_released_file_alone_loads_with_the_vocabulary_beside_it(vocabulary_dir, tmp_path):
+    """What a user does: the three downloaded files in one folder, weights = the checkpoint, nothing else. Here a
+    detectron2 checkpoint (with its bookkeeping and training vocabulary) of other weights under the release's name:
+    the loaded network is the saved one, parses as the network it was saved from, and a worker loads the same."""
     source = init_random(DeticR50(), 1)
     model = {**source.state_dict(), **{key: torch.randn(512, 1204) for key in ZS_WEIGHT_KEYS}}
     folder = tmp_path / "detic"
     folder.mkdir()
-    (folder / "m.pth").write_bytes(checkpoint_bytes({"model": model, "__author__": "Detic", "iteration": 1}))
-    for name in ("vocab.npy", "names.txt"):
-        (folder / name).write_bytes((vocabulary_dir / name).read_bytes())
-    parser = DeticParser(config.model_copy(update={"weights": str(folder / "m.pth"), "vocabulary": "vocab.npy", "class_names": "names.txt"}))
+    (folder / R50_CHECKPOINT).write_bytes(checkpoint_bytes({"model": model, "__author__": "Detic", "iteration": 1}))
+    (folder / LVIS_EMBEDDINGS).write_bytes((vocabulary_dir / "vocab.npy").read_bytes())
+    (folder / LVIS_NAMES).write_text(json.dumps((vocabulary_dir / "names.txt").read_text().splitlines()))
+    parser = DeticParser(DeticConfig(weights=str(folder / R50_CHECKPOINT), device="cpu", test_size=256, max_detections=6))
     assert DeticParser.caveat(parser.config) == ""
     loaded = parser.net.state_dict()
     assert all(torch.equal(loaded[k], v) for k, v in source.state_dict().items())
     source.set_vocabulary(torch.from_numpy(np.load(vocabulary_dir / "vocab.npy").astype(np.float32)))
     view = make_view(seed=4)
-    np.testing.assert_array_equal(parser.parse(view).labels, detect_labels(source.eval(), view, parser))
+    labels = detect_labels(source.eval(), view, parser)
+    np.testing.assert_array_equal(parser.parse(view).labels, labels)
+    copy = pickle.loads(pickle.dumps(parser))
+    assert copy.names == parser.names and copy.net is parser.net  # the same file: the process's one network
+    np.testing.assert_array_equal(copy.parse(view).labels, labels)
 
 
 def detect_labels(net, view, parser) -> np.ndarray:
@@ -193,12 +212,44 @@ def detect_labels(net, view, parser) -> np.ndarray:
     return lut[labels]
 
 
-def test_an_unreadable_checkpoint_is_a_one_line_error(vocabulary, tmp_path):
-    path = tmp_path / "broken.pth"
-    path.write_bytes(b"not a checkpoint")
+def _truncated(path):
+    data = checkpoint_bytes({"model": {"backbone.top_block.p6.weight": torch.zeros(256, 256, 3, 3)}})
+    path.write_bytes(data[: len(data) // 2])
+
+
+def _malicious(path):
+    torch.save({"model": {"pixel_mean": RunsCode(f"touch {shlex.quote(str(path.parent / 'ran'))}")}}, path)
+
+
+@pytest.mark.parametrize(
+    "damage",
+    [
+        lambda path: path.write_bytes(b"not a checkpoint"),
+        _truncated,
+        lambda path: path.write_bytes(np.random.default_rng(0).bytes(4096)),
+        _malicious,
+    ],
+    ids=["text", "truncated", "random-bytes", "malicious-pickle"],
+)
+def test_a_broken_or_malicious_checkpoint_is_one_line_and_never_runs(vocabulary, tmp_path, damage):
+    path = tmp_path / R50_CHECKPOINT
+    damage(path)
     with pytest.raises(CheckpointError, match=f"config field 'weights': {path} is not a readable checkpoint") as caught:
         DeticParser(DeticConfig(weights=str(path), **vocabulary))
-    assert "\n" not in str(caught.value) and not isinstance(caught.value, MissingWeightsError)
+    assert "\n" not in str(caught.value) and "Traceback" not in str(caught.value) and not isinstance(caught.value, MissingWeightsError)
+    assert not (tmp_path / "ran").exists(), "weights_only: the pickle's code never runs"
+
+
+def test_a_file_of_another_network_names_the_layout_it_came_closest_to(vocabulary, tmp_path):
+    path = tmp_path / "resnet.pth"  # an ImageNet classifier's keys, as a detectron2 checkpoint
+    path.write_bytes(checkpoint_bytes({"model": {"conv1.weight": torch.zeros(64, 3, 7, 7), "fc.weight": torch.zeros(10, 2048)}}))
+    with pytest.raises(CheckpointError) as caught:
+        DeticParser(DeticConfig(weights=str(path), **vocabulary))
+    message = str(caught.value)
+    assert "\n" not in message and message.startswith(f"parser 'detic': config field 'weights': {path} matches none of the layouts it loads ('resnet50-in21k')")
+    assert "closest: 'resnet50-in21k': 351 missing: backbone.bottom_up.base.conv1.weight" in message
+    assert "2 unexpected: conv1.weight, fc.weight" in message
+    assert LAYOUTS[0].name == "resnet50-in21k"
 
 
 # --------------------------------------------------------------------------- configs and experiments

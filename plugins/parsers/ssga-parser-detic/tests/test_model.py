@@ -10,6 +10,7 @@ import torch
 import torch.nn.functional as F
 from ssga_parser_detic.checkpoint import OPTIONAL_KEYS, ZS_WEIGHT_KEYS, load_state
 from ssga_parser_detic.model import NORM_TEMP, DeticR50, Settings, detect, init_random
+from ssga_parser_detic.plugin import LAYOUTS, DeticConfig
 
 from ssga_core import CheckpointError
 
@@ -66,6 +67,11 @@ PATH = "detic.pth"
 WHO = "parser 'detic'"
 
 
+def load(net: DeticR50, checkpoint, expected: str = "Detic's R50 layout") -> None:
+    """``load_state`` as the parser calls it, with its layouts and a config that sets no field of theirs."""
+    load_state(net, checkpoint, WHO, PATH, expected, LAYOUTS, DeticConfig(weights="random"))
+
+
 @pytest.fixture(scope="module")
 def net() -> DeticR50:
     return init_random(DeticR50(), 0).eval()
@@ -93,14 +99,14 @@ def test_the_network_has_the_checkpoints_key_families_and_shapes(net):
 
 def test_a_detectron2_checkpoint_loads_strictly(net, released):
     fresh = DeticR50()
-    load_state(fresh, released, WHO, PATH, "Detic")
+    load(fresh, released)
     for key, value in net.state_dict().items():
         assert torch.equal(fresh.state_dict()[key], value), key
 
 
 def _error(net, checkpoint) -> str:
     with pytest.raises(CheckpointError) as caught:
-        load_state(net, checkpoint, WHO, PATH, "Detic's R50 layout")
+        load(net, checkpoint)
     message = str(caught.value)
     assert "\n" not in message and message.startswith(f"{WHO}: config field 'weights': {PATH}")
     return message
@@ -119,15 +125,16 @@ def _with(released, **changes) -> dict:
 
 def test_mismatched_checkpoints_are_one_line_errors_naming_the_file(net, released):
     wrong = _error(net, _with(released, roi_heads__box_head__0__fc1__weight=torch.zeros(1024, 100)))
+    assert "matches none of the layouts it loads ('resnet50-in21k'); closest: 'resnet50-in21k': " in wrong
     assert "1 wrong shape: roi_heads.box_head.0.fc1.weight (1024, 100) (expected (1024, 12544))" in wrong
     extra = _error(net, _with(released, roi_heads__extra__weight=torch.zeros(3)))
     assert "1 unexpected: roi_heads.extra.weight" in extra
     missing = _error(net, _with(released, backbone__fpn_output3__bias=None))
     assert "1 missing: backbone.fpn_output3.bias" in missing
     no_vocabulary = _error(net, _with(released, roi_heads__box_predictor__1__cls_score__zs_weight=None))
-    assert "missing roi_heads.box_predictor.1.cls_score.zs_weight" in no_vocabulary
+    assert "1 missing: roi_heads.box_predictor.1.cls_score.zs_weight" in no_vocabulary
     bad_vocabulary = _error(net, _with(released, roi_heads__box_predictor__0__cls_score__zs_weight=torch.zeros(256, 10)))
-    assert "(256, 10) (expected (512, classes + 1))" in bad_vocabulary
+    assert "roi_heads.box_predictor.0.cls_score.zs_weight (256, 10) (expected (512, 10))" in bad_vocabulary
     # An optional key of the wrong shape is not dropped silently.
     odd_fc = _error(net, _with(released, backbone__bottom_up__base__fc__weight=torch.zeros(7, 1000)))
     assert "unexpected: backbone.bottom_up.base.fc.weight" in odd_fc
@@ -137,9 +144,9 @@ def test_mismatched_checkpoints_are_one_line_errors_naming_the_file(net, release
 
 def test_optional_keys_are_accepted_with_or_without(net, released):
     without = {k: v for k, v in released["model"].items() if k not in OPTIONAL_KEYS}
-    load_state(DeticR50(), {"model": without}, WHO, PATH, "")
-    load_state(DeticR50(), {"model": {**without, "pixel_mean": torch.zeros(3, 1, 1), "pixel_std": torch.ones(3, 1, 1)}}, WHO, PATH, "")
-    load_state(DeticR50(), without | {k: released["model"][k] for k in ZS_WEIGHT_KEYS}, WHO, PATH, "")  # a bare state dict
+    load(DeticR50(), {"model": without})
+    load(DeticR50(), {"model": {**without, "pixel_mean": torch.zeros(3, 1, 1), "pixel_std": torch.ones(3, 1, 1)}})
+    load(DeticR50(), without | {k: released["model"][k] for k in ZS_WEIGHT_KEYS})  # a bare state dict
 
 
 def test_the_zero_shot_classifier_is_a_scaled_cosine_with_a_zero_background(net):

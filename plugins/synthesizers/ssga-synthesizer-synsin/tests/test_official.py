@@ -14,13 +14,13 @@ from __future__ import annotations
 
 import argparse
 import copy
-import os
 import pickle
 import warnings
 
 import pytest
 import torch
 from ssga_core.testing import make_view
+from ssga_bench.testing import RunsCode
 from ssga_synthesizer_synsin.model import DROPPED_PREFIXES, Splat, SynSin, official_state_dict, spectral_weight
 from ssga_synthesizer_synsin.plugin import SynSinConfig, SynSinSynthesizer
 
@@ -180,13 +180,8 @@ def test_a_truncated_official_file_is_one_line(official, tmp_path):
 def test_allowing_synsins_options_runs_no_code(official, tmp_path):
     """SynSin's argparse.Namespace is allowed in; a file that also carries code is still refused, and the code never runs."""
     ran = tmp_path / "ran"
-
-    class Payload:
-        def __reduce__(self):
-            return (os.system, (f"touch {ran}",))
-
     path = tmp_path / "synsin.pth"
-    torch.save({"state_dict": official[2], "opts": OPTS, "epoch": 1, "optimizerG": Payload()}, path)
+    torch.save({"state_dict": official[2], "opts": OPTS, "epoch": 1, "optimizerG": RunsCode(f"touch {ran}")}, path)
     with pytest.raises(CheckpointError, match="synsin.pth is not a readable checkpoint") as err:
         SynSinSynthesizer(SynSinConfig(weights=str(path)))
     assert "\n" not in str(err.value) and not ran.exists()

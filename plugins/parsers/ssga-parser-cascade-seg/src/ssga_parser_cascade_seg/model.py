@@ -181,6 +181,10 @@ class PPMDeepsup(nn.Module):
         return logits, self.conv_last_deepsup(self.dropout_deepsup(self.cbr_deepsup(features[-2])))
 
 
+CLASSIFIER = "conv_last.4.weight"
+"""The decoder's last layer (``conv_last[-1]``): its output channels are the classes."""
+
+
 class SceneParser(nn.Module):
     """Encoder and decoder; their state dicts are the release's two files."""
 
@@ -218,14 +222,16 @@ def init_weights(model: SceneParser, seed: int) -> SceneParser:
     return model
 
 
-def plain_batch_norm_state(state: dict[str, torch.Tensor], module: nn.Module) -> dict[str, torch.Tensor]:
+def plain_batch_norm_state(state: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
     """``state`` with what only CSAIL's synchronized batch norm and older torch differ in made plain.
 
-    Drops the :data:`SYNC_BN_BUFFERS` of ``module``'s batch norms and supplies a batch
-    norm's ``num_batches_tracked`` (unused at inference) where the file has none; every
-    other key is left as it is, for a strict load to check.
+    A batch norm is whatever holds a ``running_mean`` in the file: the file alone says
+    them, so that the same state can be compared with every layout. Drops their
+    :data:`SYNC_BN_BUFFERS` and supplies their ``num_batches_tracked`` (unused at
+    inference) where the file has none; every other key is left as it is, for a strict
+    load to check.
     """
-    norms = {name for name, m in module.named_modules() if isinstance(m, nn.BatchNorm2d)}
+    norms = {key.rpartition(".")[0] for key in state if key.rpartition(".")[2] == "running_mean"}
     plain = {}
     for key, value in state.items():
         owner, _, leaf = key.rpartition(".")

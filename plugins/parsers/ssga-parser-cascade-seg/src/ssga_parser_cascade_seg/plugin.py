@@ -11,16 +11,17 @@ Weights: ``weights`` names a *folder* holding ``encoder_epoch_20.pth`` and
 ``decoder_epoch_20.pth``, as CSAIL's releases are laid out. The default is the light
 network trained here on procedural homes the benchmark never shows
 (``weights/procedural-light-ppm_deepsup/``; how it was made: the README and the
-``provenance.json`` beside the files); the presets ``ade20k-resnet50dilated-ppm_deepsup``
-and ``ade20k-resnet18dilated-ppm_deepsup`` select the official releases, whose folders
-the user places.
+``provenance.json`` beside the files). An official release folder
+(``ade20k-resnet50dilated-ppm_deepsup``...), which the user places, loads by itself: the
+files' keys and shapes say the network (:data:`LAYOUTS`), and the class count of the
+decoder's last layer says the vocabulary.
 """
 
 from __future__ import annotations
 
 import difflib
 import threading
-from collections.abc import Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import Annotated, Any, Literal, Self
 
@@ -28,7 +29,18 @@ import numpy as np
 from pydantic import Field, model_validator
 
 from ssga_core import CheckpointError, Data, InputError, MissingWeightsError, Parser, Regions, View, boxes_from_labels, hookimpl
-from ssga_bench import RANDOM_WEIGHTS, Learned, LearnedConfig, load_checkpoint, load_strict, network_calls
+from ssga_bench import (
+    RANDOM_WEIGHTS,
+    Layout,
+    Learned,
+    LearnedConfig,
+    load_checkpoint,
+    load_strict,
+    meta_shapes,
+    network_calls,
+    read_layout,
+    tensor_state,
+)
 from ssga_parser_cascade_seg.classes import VOCABULARIES
 
 WEIGHTS_DIR = Path(__file__).parent / "weights"
@@ -40,6 +52,21 @@ LIGHT_WEIGHTS = "procedural-light-ppm_deepsup"
 FILES = {"encoder": "encoder_epoch_20.pth", "decoder": "decoder_epoch_20.pth"}
 """A release folder's files (CSAIL's ``demo_test.sh``)."""
 
+LAYOUTS = (
+    Layout("light", f"trained here on procedural homes: weights/{LIGHT_WEIGHTS}/, the default"),
+    Layout("resnet18dilated", "CSAIL's ADE20K release: the folder ade20k-resnet18dilated-ppm_deepsup at sceneparsing.csail.mit.edu/model/pytorch/"),
+    Layout("resnet50dilated", "CSAIL's ADE20K release, the paper's: the folder ade20k-resnet50dilated-ppm_deepsup at sceneparsing.csail.mit.edu/model/pytorch/"),
+)
+"""The networks a ``weights`` folder can hold; which one, its files' keys and shapes say."""
+
+RANDOM_NETWORK, RANDOM_CLASSES = "light", "procedural"
+"""The network and vocabulary random weights build (tests only), where the config leaves them out."""
+
+PART_EXPECTED = (
+    "the encoder or decoder of a 'light', 'resnet18dilated' or 'resnet50dilated' network: a raw state dict "
+    "(CSAIL's releases) or one under 'state_dict' (ours)"
+)
+
 ORIGINAL_SCALES = (300, 375, 450, 525, 600)
 """CSAIL's test scales (shorter side, ``DATASET.imgSizes``) for the official releases."""
 
@@ -50,6 +77,19 @@ RANDOM_SEED = 0
 """Random weights are :func:`~.model.init_weights` with this seed: the same in every process."""
 
 
+ALL_CLASSES = tuple(dict.fromkeys(name for names in VOCABULARIES.values() for name in names))
+"""Every vocabulary's names, once each."""
+
+
+def unknown_class(wanted: Iterable[str], names: Sequence[str], said: str) -> str:
+    """The first of ``wanted`` that is not in ``names`` (the vocabulary ``said``), in words with close names; "" if none."""
+    for name in wanted:
+        if name not in names:
+            close = difflib.get_close_matches(name, names, n=3)
+            hint = f"; did you mean {', '.join(map(repr, close))}?" if close else ""
+            return f"{name!r} is no class of {said}{hint}"
+    return ""
+
 
 class CascadeSegConfig(LearnedConfig):
     weights: str = Field(
@@ -57,19 +97,20 @@ class CascadeSegConfig(LearnedConfig):
         min_length=1,
         description="Folder holding encoder_epoch_20.pth and decoder_epoch_20.pth, as CSAIL's releases are laid out "
         "(relative: the plugin's weights/ folder, then the working directory): the light network trained here "
-        "(default), e.g. 'ade20k-resnet50dilated-ppm_deepsup' (network = 'resnet50dilated', classes = 'ade20k'), "
-        "or 'random' (tests only).",
+        "(default), an official release such as 'ade20k-resnet50dilated-ppm_deepsup', or 'random' (tests only).",
     )
-    network: Literal["light", "resnet18dilated", "resnet50dilated"] = Field(
-        default="light",
+    network: Literal["light", "resnet18dilated", "resnet50dilated"] | None = Field(
+        default=None,
         description="Encoder layout (decoder: PPM with deep supervision): 'light' (ResNet18-dilated at a quarter "
         "of its widths, the packaged weights), or the official 'resnet18dilated' (fc_dim 512) or "
-        "'resnet50dilated' (fc_dim 2048). Must match the weights.",
+        "'resnet50dilated' (fc_dim 2048). Left out: the weights files', read from their keys and shapes "
+        "('light' for random weights); set, the files must hold it.",
     )
-    classes: Literal["procedural", "ade20k"] = Field(
-        default="procedural",
+    classes: Literal["procedural", "ade20k"] | None = Field(
+        default=None,
         description="The vocabulary the weights predict: 'procedural' (13 categories of procedural homes, the "
-        "packaged weights) or 'ade20k' (ADE20K's 150, the official releases). Must match the weights.",
+        "packaged weights) or 'ade20k' (ADE20K's 150, the official releases). Left out: the weights files', read "
+        "from the class count of the decoder's last layer ('procedural' for random weights); set, the files must hold it.",
     )
     image_sizes: tuple[Annotated[int, Field(ge=8, le=4096)], ...] = Field(
         default=(256,),
@@ -96,7 +137,7 @@ class CascadeSegConfig(LearnedConfig):
     ignore_classes: tuple[str, ...] = Field(
         default=(),
         max_length=256,
-        description="Class names (of the vocabulary in 'classes') whose pixels get no region, e.g. wall, floor, ceiling.",
+        description="Class names (of the vocabulary in 'classes', or the weights') whose pixels get no region, e.g. wall, floor, ceiling.",
     )
     drop_holes: bool = Field(
         default=True,
@@ -106,12 +147,12 @@ class CascadeSegConfig(LearnedConfig):
 
     @model_validator(mode="after")
     def _known_classes(self) -> Self:
-        names = VOCABULARIES[self.classes]
-        for name in self.ignore_classes:
-            if name not in names:
-                close = difflib.get_close_matches(name, names, n=3)
-                hint = f"; did you mean {', '.join(map(repr, close))}?" if close else ""
-                raise ValueError(f"ignore_classes: {name!r} is no class of classes = {self.classes!r}{hint}")
+        # With classes left out the weights say the vocabulary: a name of none is a typo now,
+        # a name of another than the weights' is found when they load (CascadeSeg.__init__).
+        said = f"classes = {self.classes!r}" if self.classes else f"any vocabulary ({', '.join(map(repr, VOCABULARIES))})"
+        problem = unknown_class(self.ignore_classes, VOCABULARIES[self.classes] if self.classes else ALL_CLASSES, said)
+        if problem:
+            raise ValueError(f"ignore_classes: {problem}")
         return self
 
 
@@ -130,30 +171,25 @@ class CascadeSeg(Learned, Parser):
     abbrev = "SE"  # the paper's tables: "P-SE (PDS)"
     Config = CascadeSegConfig
     reloaded = ("net",)
+    layouts = LAYOUTS
+    packaged_weights = WEIGHTS_DIR
     consumes = frozenset({Data.RGB})
     presets = {
         "light": {},
         "light-multiscale": {"image_sizes": LIGHT_SCALES},
-        "ade20k-resnet18dilated-ppm_deepsup": {
-            "network": "resnet18dilated",
-            "classes": "ade20k",
-            "weights": "ade20k-resnet18dilated-ppm_deepsup",
-            "image_sizes": ORIGINAL_SCALES,
-        },
-        "ade20k-resnet50dilated-ppm_deepsup": {
-            "network": "resnet50dilated",
-            "classes": "ade20k",
-            "weights": "ade20k-resnet50dilated-ppm_deepsup",
-            "image_sizes": ORIGINAL_SCALES,
-        },
+        "ade20k-resnet18dilated-ppm_deepsup": {"weights": "ade20k-resnet18dilated-ppm_deepsup", "image_sizes": ORIGINAL_SCALES},
+        "ade20k-resnet50dilated-ppm_deepsup": {"weights": "ade20k-resnet50dilated-ppm_deepsup", "image_sizes": ORIGINAL_SCALES},
     }
 
     def __init__(self, config: CascadeSegConfig | None = None) -> None:
         super().__init__(config)
-        cfg: CascadeSegConfig = self.config  # type: ignore[assignment]
-        self.class_names: tuple[str, ...] = VOCABULARIES[cfg.classes]
-        self._ignored = np.array([self.class_names.index(n) for n in cfg.ignore_classes], dtype=np.int64)
         self.net = self._load()
+        cfg: CascadeSegConfig = self.config  # type: ignore[assignment]  # now with the weights' network and classes
+        self.class_names: tuple[str, ...] = VOCABULARIES[cfg.classes]  # type: ignore[index]
+        problem = unknown_class(cfg.ignore_classes, self.class_names, f"classes = {cfg.classes!r}, the vocabulary of config field 'weights' = {cfg.weights!r}")
+        if problem:
+            raise CheckpointError(f"{self.who}: config field 'ignore_classes': {problem}")
+        self._ignored = np.array([self.class_names.index(n) for n in cfg.ignore_classes], dtype=np.int64)
 
     @property
     def who(self) -> str:
@@ -179,9 +215,10 @@ class CascadeSeg(Learned, Parser):
         raise MissingWeightsError(f"{self.who}: config field 'weights' = {value!r}: no such folder (looked for {where}); set 'weights' to {wanted}")
 
     def _load(self):  # -> SceneParser
+        """The network, once per process per folder; ``self.config`` gets the files' ``network`` and ``classes``."""
         cfg: CascadeSegConfig = self.config  # type: ignore[assignment]
         device = self.device
-        shape = (cfg.network, cfg.classes, str(device))
+        shape = (cfg.network, cfg.classes, str(device))  # as given: a field set against the files must still fail
         if self.random_weights:
             key: tuple[Any, ...] = (RANDOM_WEIGHTS, *shape)
             folder = None
@@ -191,39 +228,43 @@ class CascadeSeg(Learned, Parser):
             key = (str(folder), stamps, *shape)
         with _LOCK:
             if key not in _NETWORKS:
-                _NETWORKS[key] = (self._random() if folder is None else self._from_folder(folder)).to(device).eval()
-            return _NETWORKS[key]
-
-    def _random(self):
-        from ssga_parser_cascade_seg.model import NETWORKS, SceneParser, init_weights
-
-        cfg: CascadeSegConfig = self.config  # type: ignore[assignment]
-        return init_weights(SceneParser(NETWORKS[cfg.network], len(self.class_names)), RANDOM_SEED)
-
-    def _from_folder(self, folder: Path):
-        from ssga_parser_cascade_seg.model import NETWORKS, SceneParser, plain_batch_norm_state
-
-        cfg: CascadeSegConfig = self.config  # type: ignore[assignment]
-        net = SceneParser(NETWORKS[cfg.network], len(self.class_names))
-        for part, module in (("encoder", net.encoder), ("decoder", net.decoder)):
-            path = folder / FILES[part]
-            expected = (
-                f"the {part} of the {cfg.network!r} network with {len(self.class_names)} classes ({cfg.classes}): "
-                f"{len(module.state_dict())} keys (the synchronized batch norms' buffers and num_batches_tracked optional), "
-                "a raw state dict or under 'state_dict'"
-            )
-            checkpoint = load_checkpoint(path, self.who, expected)
-            state = checkpoint
-            if isinstance(checkpoint, dict) and isinstance(checkpoint.get("state_dict"), dict):
-                for field in ("network", "classes"):  # ours say what they hold; a release's raw dict does not
-                    stored = checkpoint.get(field)
-                    if stored is not None and stored != getattr(cfg, field):
-                        raise CheckpointError(f"{self.who}: config field 'weights': {path} holds {field} = {stored!r}; set {field} = {stored!r}")
-                state = checkpoint["state_dict"]
-            if isinstance(state, dict):
-                state = plain_batch_norm_state(state, module)
-            load_strict(module, state, self.who, path, expected)
+                net, fields = self._random() if folder is None else self._from_folder(folder)
+                _NETWORKS[key] = (net.to(device).eval(), fields)
+            net, fields = _NETWORKS[key]
+        self.config = cfg.model_copy(update=fields)
         return net
+
+    def _random(self):  # -> (SceneParser, fields)
+        from ssga_parser_cascade_seg.model import init_weights
+
+        cfg: CascadeSegConfig = self.config  # type: ignore[assignment]
+        fields = {"network": cfg.network or RANDOM_NETWORK, "classes": cfg.classes or RANDOM_CLASSES}
+        return init_weights(_scene_parser(fields), RANDOM_SEED), fields
+
+    def _from_folder(self, folder: Path):  # -> (SceneParser, fields)
+        """Both files as one checkpoint: their union says the layout (a light encoder beside a ResNet50 decoder is none)."""
+        states = {f"{part}.{key}": value for part in FILES for key, value in self._part_state(folder / FILES[part]).items()}
+        _, fields = read_layout(self.config, _in_files(states), LAYOUTS, self._network_of, self.who, folder)
+        net = _scene_parser(fields)
+        load_strict(net, states, self.who, folder, f"the {fields['network']!r} network with classes = {fields['classes']!r}")
+        return net, fields
+
+    def _part_state(self, path: Path) -> dict[str, Any]:
+        """One file's state dict, raw (CSAIL's) or under ``state_dict`` (ours), its batch-norm bookkeeping made plain.
+
+        Ours also say their ``network`` and ``classes``: provenance only, the keys and
+        shapes decide, as for a release's raw dict.
+        """
+        from ssga_parser_cascade_seg.model import plain_batch_norm_state
+
+        checkpoint = load_checkpoint(path, self.who, PART_EXPECTED)
+        state = checkpoint["state_dict"] if isinstance(checkpoint, dict) and isinstance(checkpoint.get("state_dict"), dict) else checkpoint
+        return plain_batch_norm_state(tensor_state(state, self.who, path, PART_EXPECTED))
+
+    def _network_of(self, layout: Layout, state: Mapping[str, Any]) -> tuple[dict[str, Any], dict[str, tuple[int, ...]]]:
+        """The fields, keys and shapes of ``layout``'s network with the vocabulary of the files' class count."""
+        fields = {"network": layout.name, "classes": _classes(state, self.config.classes)}
+        return fields, _in_files(meta_shapes(lambda: _scene_parser(fields)))
 
     # ------------------------------------------------------------------ parsing
 
@@ -285,6 +326,35 @@ class CascadeSeg(Learned, Parser):
             classes[np.isin(classes, self._ignored)] = -1
         return class_regions(classes, self.class_names, cfg.min_region_px, cfg.connectivity, confidence)
 
+
+
+def _scene_parser(fields: Mapping[str, Any]):  # -> SceneParser
+    from ssga_parser_cascade_seg.model import NETWORKS, SceneParser
+
+    return SceneParser(NETWORKS[fields["network"]], len(VOCABULARIES[fields["classes"]]))
+
+
+def _in_files(entries: Mapping[str, Any]) -> dict[str, Any]:
+    """``SceneParser``'s keys (``encoder.*``, ``decoder.*``) as ``encoder_epoch_20.pth:*``, ``decoder_epoch_20.pth:*``,
+    so that a mismatch names the file and the key in it."""
+    named = {}
+    for key, value in entries.items():
+        part, _, rest = key.partition(".")
+        named[f"{FILES[part]}:{rest}"] = value
+    return named
+
+
+def _classes(state: Mapping[str, Any], configured: str | None) -> str:
+    """The vocabulary of the files' class count, the outputs of the decoder's last layer (the vocabularies' counts differ).
+
+    A count no vocabulary has gives the configured one (else the random weights'), so the
+    mismatch is reported as that layer's wrong shape.
+    """
+    from ssga_parser_cascade_seg.model import CLASSIFIER
+
+    last = state.get(f"{FILES['decoder']}:{CLASSIFIER}")
+    count = int(last.shape[0]) if last is not None and last.ndim == 4 else None
+    return next((name for name, names in VOCABULARIES.items() if len(names) == count), configured or RANDOM_CLASSES)
 
 
 def class_regions(classes: np.ndarray, names: tuple[str, ...], min_px: int, connectivity: int = 8, confidence: np.ndarray | None = None) -> Regions:

@@ -7,21 +7,26 @@ checked key by key and shape by shape, plus:
 
 * ``roi_heads.box_predictor.{0,1,2}.cls_score.zs_weight``: the classifier's class
   embeddings of the training vocabulary, ``(512, C + 1)`` (22048 columns for the
-  LVIS+COCO+ImageNet-21k model): required, then replaced by the configured vocabulary,
-  as Detic's ``reset_cls_test`` does at test time;
+  LVIS+COCO+ImageNet-21k model, C is the file's): required, then replaced by the
+  configured vocabulary, as Detic's ``reset_cls_test`` does at test time;
 * :data:`OPTIONAL_KEYS`, which inference never reads, accepted with or without.
+
+The keys and shapes are compared with the plugin's layouts by the learned-stage kit's
+:func:`~ssga_bench.read_layout`, so a file of another network is said as every learned
+plugin says it: the closest layout and its first missing, unexpected or wrongly shaped keys.
 """
 
 from __future__ import annotations
 
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
 import torch
 
-from ssga_bench import load_strict
+from ssga_bench import Layout, load_strict, meta_shapes, read_layout, tensor_state
 from ssga_core import CheckpointError
-from ssga_parser_detic.model import CASCADE_BOX_WEIGHTS, EMBED_DIM
+from ssga_parser_detic.model import CASCADE_BOX_WEIGHTS, EMBED_DIM, DeticR50
 
 ZS_WEIGHT_KEYS = tuple(f"roi_heads.box_predictor.{k}.cls_score.zs_weight" for k in range(len(CASCADE_BOX_WEIGHTS)))
 
@@ -59,32 +64,39 @@ def model_state(checkpoint: Any) -> tuple[dict[str, Any] | None, str]:
     return None, f"a {type(checkpoint).__name__}, not a dict"
 
 
-def split_state(state: dict[str, Any]) -> tuple[dict[str, Any], list[str]]:
-    """``state`` without its class embeddings and the optional keys, and what is wrong with the embeddings.
+def network_state(checkpoint: Any, who: str, path: Path | str, expected: str) -> dict[str, torch.Tensor]:
+    """The checkpoint's state dict of tensors without the :data:`OPTIONAL_KEYS` of the right shapes; else one :class:`CheckpointError` line.
 
-    An optional key of an unexpected shape stays, so the strict load names it.
+    An optional key of an unexpected shape stays, so the layout check names it.
     """
-    rest = dict(state)
-    problems = []
-    for key in ZS_WEIGHT_KEYS:
-        value = rest.pop(key, None)
-        if not isinstance(value, torch.Tensor):
-            problems.append(f"missing {key}")
-        elif value.ndim != 2 or value.shape[0] != EMBED_DIM:
-            problems.append(f"{key} {tuple(value.shape)} (expected ({EMBED_DIM}, classes + 1))")
-    for key, shape in OPTIONAL_KEYS.items():
-        value = rest.get(key)
-        if isinstance(value, torch.Tensor) and value.ndim == len(shape) and all(s in (None, d) for s, d in zip(shape, value.shape, strict=True)):
-            del rest[key]
-    return rest, problems
-
-
-def load_state(net: torch.nn.Module, checkpoint: Any, who: str, path: Path | str, expected: str) -> None:
-    """Load a checkpoint's network weights into ``net`` strictly; any mismatch is one :class:`CheckpointError` line naming ``expected``."""
     state, what = model_state(checkpoint)
     if state is None:
         raise CheckpointError(f"{who}: config field 'weights': {path} holds {what}; expected {expected}")
-    rest, problems = split_state(state)
-    if problems:
-        raise CheckpointError(f"{who}: config field 'weights': {path} does not match {expected}: {'; '.join(problems)}")
-    load_strict(net, rest, who, path, expected)
+    rest = dict(tensor_state(state, who, path, expected))
+    for key, shape in OPTIONAL_KEYS.items():
+        value = rest.get(key)
+        if value is not None and value.ndim == len(shape) and all(s in (None, d) for s, d in zip(shape, value.shape, strict=True)):
+            del rest[key]
+    return rest
+
+
+def file_shapes(state: Mapping[str, torch.Tensor]) -> dict[str, tuple[int, ...]]:
+    """The keys and shapes of a file of :class:`DeticR50`: the network's, and each stage's class embeddings
+    ``(512, C + 1)`` with the file's C (any training vocabulary loads: the configured one replaces it)."""
+    shapes = meta_shapes(DeticR50)
+    for key in ZS_WEIGHT_KEYS:
+        value = state.get(key)
+        shapes[key] = (EMBED_DIM, int(value.shape[-1]) if value is not None and value.ndim else 1)
+    return shapes
+
+
+def load_state(net: DeticR50, checkpoint: Any, who: str, path: Path | str, expected: str, layouts: Sequence[Layout], config: Any) -> None:
+    """Load a checkpoint's network weights into ``net`` strictly; any mismatch is one :class:`CheckpointError` line.
+
+    ``layouts`` (the plugin's) all build :class:`DeticR50`: a file matching one loads into
+    ``net``; one matching none names the closest. They set no config field, so ``config``
+    is never contradicted.
+    """
+    state = network_state(checkpoint, who, path, expected)
+    read_layout(config, state, layouts, lambda _layout, file: ({}, file_shapes(file)), who, path)
+    load_strict(net, {k: v for k, v in state.items() if k not in ZS_WEIGHT_KEYS}, who, path, expected)

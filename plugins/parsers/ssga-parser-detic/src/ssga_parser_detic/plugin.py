@@ -22,7 +22,7 @@ from typing import TYPE_CHECKING, Any, Literal
 import numpy as np
 from pydantic import Field
 
-from ssga_bench import RANDOM_WEIGHTS, Learned, LearnedConfig, find_weights, load_checkpoint
+from ssga_bench import RANDOM_WEIGHTS, Layout, Learned, LearnedConfig, find_weights, load_checkpoint
 
 if TYPE_CHECKING:  # torch loads when the parser is made, not when the plugin registers
     from ssga_parser_detic.model import Settings
@@ -31,6 +31,16 @@ from ssga_core import CheckpointError, MissingWeightsError, Parser, Regions, Vie
 R50_CHECKPOINT = "Detic_LCOCOI21k_CLIP_R5021k_640b32_4x_ft4x_max-size.pth"
 """The released model of Detic's ResNet-50 config of the same name (LVIS + COCO boxes, ImageNet-21k image labels)."""
 R50_URL = f"https://dl.fbaipublicfiles.com/detic/{R50_CHECKPOINT}"
+
+LAYOUTS = (
+    Layout(
+        "resnet50-in21k",
+        f"Detic's released ResNet-50 (ImageNet-21k backbone, CenterNet2, CLIP classifier): {R50_URL}",
+    ),
+)
+"""The networks a ``weights`` file can hold: one, the network built here (Detic's Swin-B, ConvNeXt-T and
+ResNet-18 models have other backbones). The file's keys and shapes are checked against it; it sets no config field."""
+
 LVIS_EMBEDDINGS = "lvis_v1_clip_a+cname.npy"
 LVIS_NAMES = "lvis_v1_train_cat_info.json"
 
@@ -95,6 +105,7 @@ class DeticParser(Learned, Parser):
     abbrev = "DE"  # the paper's tables: "P-DE (PDS)"
     Config = DeticConfig
     reloaded = ("net", "names")
+    layouts = LAYOUTS
     presets = {
         "demo": {"resize": "shortest-edge", "test_size": 800, "max_size": 1333},
         "all-classes": {"one_class_per_proposal": False},
@@ -169,7 +180,7 @@ class DeticParser(Learned, Parser):
 
         net = DeticR50()
         expected = f"a detectron2 checkpoint {{'model': state dict}} of Detic's ResNet-50 configuration, as {R50_CHECKPOINT} ({layout(net)})"
-        load_state(net, load_checkpoint(path, self.who, expected), self.who, path, expected)
+        load_state(net, load_checkpoint(path, self.who, expected), self.who, path, expected, LAYOUTS, self.config)
         return net
 
     # ------------------------------------------------------------------ parsing
