@@ -309,6 +309,7 @@ def test_packaged_weights_on_another_kind_of_workspace_are_flagged_in_the_report
         name = "test-trained-here"
         Config = LearnedConfig
         packaged_weights = packaged
+        trained_on = "procedural"
 
     class Plugin:
         @hookimpl

@@ -159,6 +159,7 @@ def test_packaged_weights_on_another_kind_of_workspace_are_flagged(tmp_path):
     class Stage(Learned):
         kind, name = "descriptor", "x"
         packaged_weights = packaged
+        trained_on = "procedural"
 
     warning = Stage.out_of_domain(LearnedConfig(weights="light.pt"), "mesh")
     assert warning == "descriptor 'x' runs the weights trained here on procedural homes (light.pt), not on views like this 'mesh' workspace's"

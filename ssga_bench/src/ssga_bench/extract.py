@@ -18,6 +18,7 @@ The file is written whole or not at all.
 from __future__ import annotations
 
 import io
+import math
 import os
 from collections.abc import Callable, Sequence
 from contextlib import ExitStack
@@ -28,7 +29,7 @@ import cv2
 import numpy as np
 
 from ssga_bench.execution import Executor, SerialExecutor
-from ssga_bench.io import atomic_write_bytes, read_png
+from ssga_bench.io import atomic_write_bytes, image_size, read_rgb
 from ssga_bench.tasks import chunks, span
 from ssga_core.config import ResolvedStage
 from ssga_core.data import View
@@ -55,12 +56,15 @@ def image_names(paths: Sequence[Path]) -> list[str]:
 
 def load_image(path: Path) -> tuple[View, tuple[int, int] | None]:
     """The image as a 256 x 256 view (a 90 degree pinhole at the origin), and its original (W, H) if resized."""
-    rgb = read_png(path, color=True)  # OpenCV reads PNG, JPEG and the rest alike
+    size = image_size(path)
+    # Read reduced, but with the shorter side still at least 256 (a large JPEG is never decoded whole).
+    enough = None if size is None else max(SIZE, math.ceil(SIZE * max(size) / max(1, min(size))))
+    rgb, reduced_from = read_rgb(path, enough)  # OpenCV reads PNG, JPEG and the rest alike
     h, w = rgb.shape[:2]
-    resized = None
+    resized = reduced_from
     if (h, w) != (SIZE, SIZE):
         rgb = cv2.resize(rgb, (SIZE, SIZE), interpolation=cv2.INTER_AREA)
-        resized = (w, h)
+        resized = reduced_from or (w, h)
     return View(rgb=np.ascontiguousarray(rgb), pose=Pose(0.0, 0.0, 0.0), camera=Camera(SIZE, SIZE)), resized
 
 

@@ -187,6 +187,63 @@ def read_png(path: str | Path, *, color: bool) -> np.ndarray:
     return image
 
 
+WORKING_SIDE = 1024
+"""Longest side ``ssga parse`` and ``ssga synthesize`` read an image at by default (``--max-side``):
+a 12-megapixel photo or a 4K frame is parsed at a size its regions still show, in bounded memory."""
+
+_REDUCTIONS = (8, 4, 2)
+"""The factors OpenCV can decode an image at (``IMREAD_REDUCED_COLOR_*``): a JPEG is then
+decoded at that size by libjpeg's DCT scaling and never exists in memory at full size."""
+
+
+def image_size(path: str | Path) -> tuple[int, int] | None:
+    """``(width, height)`` from the file's header (nothing decoded), or ``None`` if Pillow cannot tell."""
+    from PIL import Image, UnidentifiedImageError
+
+    try:
+        with Image.open(path) as image:
+            return image.size
+    except (UnidentifiedImageError, OSError, ValueError):
+        return None
+
+
+def read_rgb(path: str | Path, max_side: int | None = None) -> tuple[np.ndarray, tuple[int, int] | None]:
+    """The image at ``path`` as uint8 RGB whose longest side is at most ``max_side``, and its
+    original ``(width, height)`` if it was reduced.
+
+    Reduced while decoded where the format allows (a JPEG by 2, 4 or 8), then resized
+    with area averaging to the exact size, so memory stays a small multiple of the
+    result's. OpenCV honours EXIF orientation, and reads grey, RGBA, palette and 16-bit
+    images as 8-bit RGB.
+    """
+    size = image_size(path) if max_side else None
+    flags = cv2.IMREAD_COLOR
+    if size is not None and max_side is not None:
+        longest = max(size)
+        factor = next((f for f in _REDUCTIONS if longest // f >= max_side), 1)
+        flags = {8: cv2.IMREAD_REDUCED_COLOR_8, 4: cv2.IMREAD_REDUCED_COLOR_4, 2: cv2.IMREAD_REDUCED_COLOR_2}.get(factor, flags)
+    image = cv2.imread(str(path), flags)
+    if image is None:
+        why = "no such file" if not Path(path).exists() else "not a readable image"
+        raise InputError(f"{path}: {why}")
+    rgb = cv2.cvtColor(image, cv2.COLOR_BGR2RGB)
+    del image
+    h, w = rgb.shape[:2]
+    if max_side is None or max(h, w) <= max_side:
+        return rgb, None if size is None or size in ((w, h), (h, w)) else size
+    scale = max_side / max(h, w)
+    shape = (max(1, round(w * scale)), max(1, round(h * scale)))
+    original = size if size is not None else (w, h)
+    return cv2.resize(rgb, shape, interpolation=cv2.INTER_AREA), original
+
+
+def fit_channel(channel: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    """A depth or id map at the image's reduced ``(height, width)``: nearest samples, never blends of two surfaces or ids."""
+    if channel.shape[:2] == shape:
+        return channel
+    return cv2.resize(channel, (shape[1], shape[0]), interpolation=cv2.INTER_NEAREST)
+
+
 def depth_to_png16(depth: np.ndarray) -> np.ndarray:
     """Metric depth as 16-bit millimetres (0 = unknown), as Habitat and most RGB-D datasets store it."""
     d = np.where(np.isfinite(depth) & (depth > 0), depth, 0.0)

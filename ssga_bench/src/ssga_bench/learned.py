@@ -90,9 +90,9 @@ class Learned:
                 setattr(self, name, value)
 
     packaged_weights: ClassVar[Path | None] = None
-    """The plugin's own ``weights/`` folder, if it ships weights: those were trained here, on
-    homes of the :attr:`trained_on` workspace source (their provenance is beside them)."""
-    trained_on: ClassVar[str] = "procedural"
+    """The plugin's own ``weights/`` folder, if it ships weights trained here (their provenance is beside them)."""
+    trained_on: ClassVar[str] = ""
+    """The workspace source whose homes the packaged weights were trained on (its name)."""
 
     @classmethod
     def caveat(cls, config: Any) -> str:
@@ -102,7 +102,7 @@ class Learned:
     def out_of_domain(cls, config: Any, workspace: str) -> str:
         """What a report says when ``config`` runs the packaged weights, trained on
         :attr:`trained_on` homes, on the views of another workspace source; else ``""``."""
-        if cls.packaged_weights is None or workspace == cls.trained_on or config.weights == RANDOM_WEIGHTS:
+        if cls.packaged_weights is None or not cls.trained_on or workspace == cls.trained_on or config.weights == RANDOM_WEIGHTS:
             return ""
         path = Path(config.weights).expanduser()
         packaged = cls.packaged_weights / path.name

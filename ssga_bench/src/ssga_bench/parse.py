@@ -39,7 +39,19 @@ import numpy as np
 
 from ssga_bench.extract import image_names
 from ssga_bench.execution import Executor, SerialExecutor
-from ssga_bench.io import atomic_write_bytes, depth_from_png16, ids_from_png16, ids_to_png16, png_bytes, read_png, writable_folder, write_json
+from ssga_bench.io import (
+    WORKING_SIDE,
+    atomic_write_bytes,
+    depth_from_png16,
+    fit_channel,
+    ids_from_png16,
+    ids_to_png16,
+    png_bytes,
+    read_png,
+    read_rgb,
+    writable_folder,
+    write_json,
+)
 from ssga_bench.tasks import chunks, span
 from ssga_core.config import ResolvedStage
 from ssga_bench.scene_graph_figure import draw_scene_graph
@@ -67,6 +79,8 @@ class ParsedImage:
     edges: int
     """Edges between parts (the whole-image node's edges, one per part, not counted)."""
     channels: tuple[str, ...]
+    resized_from: tuple[int, int] | None = None
+    """The image's own ``(width, height)`` where it was parsed reduced (``max_side``)."""
 
 
 def companion_files(image: Path) -> tuple[dict[str, Path], bool]:
@@ -88,19 +102,21 @@ def _read_16bit(path: Path, channel: str, shape: tuple[int, int]) -> np.ndarray:
     return raw
 
 
-def load_view(image: Path, *, companions: bool = True) -> tuple[View, tuple[str, ...]]:
-    """``image`` as a view (a 90 degree pinhole at the origin) with its companion channels; and the channels read."""
+def load_view(image: Path, *, companions: bool = True, max_side: int | None = WORKING_SIDE) -> tuple[View, tuple[str, ...], tuple[int, int] | None]:
+    """``image`` as a view (a 90 degree pinhole at the origin) with its companion channels, its
+    longest side at most ``max_side``; the channels read; and the image's own ``(width, height)``
+    if it was reduced."""
     if not image.is_file():  # said here: OpenCV would print a warning of its own before the error
         raise InputError(f"{image}: {'a folder, expected an image' if image.is_dir() else 'no such file'}")
-    rgb = read_png(image, color=True)
+    rgb, resized_from = read_rgb(image, max_side)
     h, w = rgb.shape[:2]
     files, synthetic = companion_files(image) if companions else ({}, False)
     channels: dict[str, np.ndarray] = {}
     for channel, path in files.items():
-        raw = _read_16bit(path, channel, (h, w))
-        channels[channel] = depth_from_png16(raw) if channel == "depth" else ids_from_png16(raw)
+        raw = _read_16bit(path, channel, (resized_from[1], resized_from[0]) if resized_from else (h, w))
+        channels[channel] = fit_channel(depth_from_png16(raw) if channel == "depth" else ids_from_png16(raw), (h, w))
     view = View(rgb=np.ascontiguousarray(rgb), pose=Pose(0.0, 0.0, 0.0), camera=Camera(width=w, height=h), synthetic=synthetic, **channels)
-    return view, ("rgb", *channels)
+    return view, ("rgb", *channels), resized_from
 
 
 def scene_graph(view: View, regions: Regions) -> SceneGraph:
@@ -176,6 +192,7 @@ class ParseJob:
     folder: str
     companions: bool
     preset: str | None
+    max_side: int | None = WORKING_SIDE
 
     def what(self) -> str:
         return span("image", self.images)
@@ -191,6 +208,7 @@ class ParsedFiles:
     regions: int
     edges: int
     channels: tuple[str, ...]
+    resized_from: tuple[int, int] | None
 
 
 def parse_chunk(job: ParseJob) -> list[ParsedFiles]:
@@ -199,19 +217,21 @@ def parse_chunk(job: ParseJob) -> list[ParsedFiles]:
 
     parser = opened_stage(job.parser)
     with in_folder(job.folder):
-        loaded = [load_view(Path(image), companions=job.companions) for image in job.images]
+        loaded = [load_view(Path(image), companions=job.companions, max_side=job.max_side) for image in job.images]
     try:
-        parsed = parser.parse_many([view for view, _ in loaded])
+        parsed = parser.parse_many([view for view, _, _ in loaded])
     except InputError as exc:
         raise InputError(f"{job.what()}: {exc}") from None
     record = parser_record(parser, job.preset)
     title = parser.name + (f" ({job.preset})" if job.preset else "")
     out = []
-    for image, name, (view, channels), regions in zip(job.images, job.names, loaded, parsed):
+    for image, name, (view, channels, resized_from), regions in zip(job.images, job.names, loaded, parsed):
         graph = scene_graph(view, regions)
         json_record = {
             "image": image,
             "size": [view.camera.width, view.camera.height],
+            # Regions and boxes are in the pixels of "size"; the image's own size, where it was parsed reduced.
+            "resized_from": list(resized_from) if resized_from else None,
             "channels": list(channels),
             "synthetic": view.synthetic,
             "parser": record,
@@ -232,6 +252,7 @@ def parse_chunk(job: ParseJob) -> list[ParsedFiles]:
                 regions=len(regions),
                 edges=between,
                 channels=channels,
+                resized_from=resized_from,
             )
         )
     return out
@@ -247,6 +268,7 @@ def parse_images(
     progress: Callable[[str, int, int], None] | None = None,
     executor: Executor | None = None,
     batch: int = 16,
+    max_side: int | None = WORKING_SIDE,
 ) -> list[ParsedImage]:
     """Parse every image, and write its picture, label PNG and JSON into ``out`` (see the module docstring).
 
@@ -257,6 +279,8 @@ def parse_images(
         progress: called with ``("parse", done, total)``.
         executor: parses the images in chunks of ``batch`` on its workers (default: in
             this process).
+        max_side: an image whose longest side is larger is parsed reduced to it (read reduced:
+            a 12000 x 12000 photo is never decoded whole); ``None``: every image at its own size.
     """
     paths = [Path(p) for p in images]
     if not paths:
@@ -271,10 +295,10 @@ def parse_images(
             if (out / f"{name}{suffix}").resolve() in inputs:
                 raise InputError(f"{out / f'{name}{suffix}'}: is an input; the output of {path} would replace it; choose another --out")
     for path in paths:
-        check_carries(parser.cls, load_view(path, companions=companions)[0], path, companions=companions)
+        check_carries(parser.cls, load_view(path, companions=companions, max_side=max_side)[0], path, companions=companions)
     writable_folder(out)
     jobs = [
-        ParseJob(parser, tuple(str(paths[i]) for i in chunk), tuple(names[i] for i in chunk), os.getcwd(), companions, preset)
+        ParseJob(parser, tuple(str(paths[i]) for i in chunk), tuple(names[i] for i in chunk), os.getcwd(), companions, preset, max_side)
         for chunk in chunks(range(len(paths)), batch)
     ]
     parsed: list[ParsedImage] = []
@@ -286,7 +310,7 @@ def parse_images(
             atomic_write_bytes(out / f"{name}{LABELS}", files.labels)
             write_json(out / f"{name}{REGIONS}", files.record)
             atomic_write_bytes(picture, files.picture)
-            parsed.append(ParsedImage(path, picture, files.regions, files.edges, files.channels))
+            parsed.append(ParsedImage(path, picture, files.regions, files.edges, files.channels, files.resized_from))
             if progress:
                 progress("parse", n, len(paths))
     return parsed

@@ -20,8 +20,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from ssga_bench.io import depth_from_png16, depth_to_png16, read_png, write_png
-from ssga_core.data import Synthesis, View
+from ssga_bench.io import WORKING_SIDE, depth_from_png16, depth_to_png16, fit_channel, read_png, read_rgb, write_png
+from ssga_core.data import View
 from ssga_core.errors import InputError
 from ssga_core.geometry import Camera, Pose
 from ssga_core.stages import Synthesizer
@@ -65,14 +65,17 @@ def synthesize_image(
     *,
     depth: str | Path | None = None,
     hfov_deg: float = 90.0,
-) -> Synthesis:
-    rgb = read_png(image, color=True)
+    max_side: int | None = WORKING_SIDE,
+) -> tuple[int, int] | None:
+    """Render ``image`` from the moved camera into ``out``; the image's own ``(width, height)`` if it
+    was read reduced to ``max_side`` (its depth with it, by nearest samples), else ``None``."""
+    rgb, resized_from = read_rgb(image, max_side)
     h, w = rgb.shape[:2]
     view = View(
         rgb=np.ascontiguousarray(rgb),
         pose=Pose(0.0, 0.0, 0.0),
         camera=Camera(width=w, height=h, hfov_deg=hfov_deg),
-        depth=None if depth is None else read_depth(Path(depth), (h, w)),
+        depth=None if depth is None else fit_channel(read_depth(Path(depth), (resized_from[1], resized_from[0]) if resized_from else (h, w)), (h, w)),
     )
     forward, left, yaw = move
     synthesis = synthesizer.synthesize(view, Pose(forward, left, math.radians(yaw)))
@@ -94,4 +97,4 @@ def synthesize_image(
     write_png(out / "holes.png", holes.astype(np.uint8) * 255)
     gap = np.full((h, 4, 3), 255, dtype=np.uint8)
     write_png(out / "side-by-side.png", cv2.hconcat([rgb, gap, synthetic.rgb, gap, marked]))
-    return synthesis
+    return resized_from

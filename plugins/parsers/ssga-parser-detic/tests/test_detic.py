@@ -30,7 +30,6 @@ from ssga_parser_detic.plugin import (
 
 from ssga_bench import ProtocolConfig, build_dataset, checkpoint_bytes, run_experiment, validate_experiment
 from ssga_core import CheckpointError, ConfigError, MissingWeightsError, Pose, resolve_stage
-from ssga_core.plugins import plugin_rows
 
 
 @pytest.fixture(scope="module")
@@ -50,8 +49,7 @@ def test_is_installed_and_registered(ssga_installed_registry):
     assert entry.cls is DeticParser
     assert entry.plugin.distribution == "ssga-parser-detic"
     assert DeticParser.tag() == "DE"
-    row = next(r for r in plugin_rows(ssga_installed_registry) if r["name"] == "detic")
-    assert [layout["name"] for layout in row["layouts"]] == ["resnet50-in21k"] and R50_URL in row["layouts"][0]["source"]
+    assert [layout.name for layout in entry.cls.layouts] == ["resnet50-in21k"] and R50_URL in entry.cls.layouts[0].source
 
 
 def test_meets_the_parser_contract(parser):

@@ -51,6 +51,16 @@ ExecutorOption = Annotated[
     typer.Option("--executor", metavar="serial|processes|ray", help="Where the work runs [default: the config's [execution], else processes on every core]."),
 ]
 WorkersOption = Annotated[int | None, typer.Option("--workers", min=0, metavar="N", help="Workers (0: every core, or every CPU of the Ray cluster).")]
+MaxSideOption = Annotated[
+    int,
+    typer.Option(
+        "--max-side",
+        min=0,
+        metavar="PX",
+        help="An image whose longest side is larger is read reduced to it (a 12000 x 12000 photo is never decoded whole), "
+        "and said so; 0: every image at its own size.",
+    ),
+]
 AddressOption = Annotated[str | None, typer.Option("--address", metavar="HOST:PORT", help="--executor ray: the Ray cluster to join ('auto' or the head's address).")]
 
 

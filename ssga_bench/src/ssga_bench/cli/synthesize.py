@@ -9,7 +9,8 @@ import typer
 
 from ssga_core.cli import command, current_registry
 from ssga_core.config import resolve_stage
-from ssga_bench.cli import parse_option
+from ssga_bench.cli import MaxSideOption, parse_option
+from ssga_bench.io import WORKING_SIDE
 
 
 def synthesize_cli(
@@ -20,6 +21,7 @@ def synthesize_cli(
     depth: Annotated[Path | None, typer.Option(metavar="FILE", help="The image's metric depth (a 16-bit PNG of millimetres, or a NumPy file of metres), for synthesizers that need it.")] = None,
     hfov: Annotated[float, typer.Option(min=1.0, max=179.0, metavar="DEGREES", help="Horizontal field of view of the camera.")] = 90.0,
     option: Annotated[list[str] | None, typer.Option("--option", "-o", metavar="KEY=VALUE", help="A parameter of the synthesizer (or preset=NAME); repeatable.")] = None,
+    max_side: MaxSideOption = WORKING_SIDE,
 ) -> None:
     """Render IMAGE from a moved camera with any synthesizer, with its depth, its holes and a side-by-side picture (the paper's Fig. 3)."""
     from ssga_bench.synthesize import parse_move, synthesize_image
@@ -27,9 +29,10 @@ def synthesize_cli(
     target = parse_move(move)
     ref = {"name": synthesizer, **dict(parse_option(o) for o in option or [])}
     stage = resolve_stage("synthesizer", ref, current_registry(), source="command-line options").create()
-    synthesize_image(stage, image, target, out, depth=depth, hfov_deg=hfov)
+    resized_from = synthesize_image(stage, image, target, out, depth=depth, hfov_deg=hfov, max_side=max_side or None)
     caveat = type(stage).caveat(stage.config)
-    typer.echo(f"{out / 'side-by-side.png'}: {image} from {target[0]:g} m ahead, {target[1]:g} m left, turned {target[2]:g} degrees" + (f" [{caveat}]" if caveat else ""))
+    reduced = f" (its {resized_from[0]} x {resized_from[1]} read reduced to --max-side {max_side})" if resized_from else ""
+    typer.echo(f"{out / 'side-by-side.png'}: {image}{reduced} from {target[0]:g} m ahead, {target[1]:g} m left, turned {target[2]:g} degrees" + (f" [{caveat}]" if caveat else ""))
 
 
 def register(app: typer.Typer) -> None:

@@ -123,6 +123,7 @@ class Pnv(Learned, BoWDescriptor):
     reloaded = ("net",)
     layouts = LAYOUTS
     packaged_weights = WEIGHTS_DIR
+    trained_on = "procedural"  # the workspace source whose homes the packaged weights saw
     presets = {
         "light": {},
         "mapillary": {"weights": "mapillary_WPCA512.pth.tar"},

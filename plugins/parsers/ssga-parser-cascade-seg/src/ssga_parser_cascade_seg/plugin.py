@@ -173,6 +173,7 @@ class CascadeSeg(Learned, Parser):
     reloaded = ("net",)
     layouts = LAYOUTS
     packaged_weights = WEIGHTS_DIR
+    trained_on = "procedural"  # the workspace source whose homes the packaged weights saw
     consumes = frozenset({Data.RGB})
     presets = {
         "light": {},

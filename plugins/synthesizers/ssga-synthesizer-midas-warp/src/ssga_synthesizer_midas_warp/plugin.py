@@ -122,6 +122,7 @@ class MidasWarp(Learned, DepthWarp):
     produces = frozenset({Data.RGB, Data.DEPTH, Data.POINT_MAP})
     layouts = LAYOUTS
     packaged_weights = WEIGHTS_DIR
+    trained_on = "procedural"  # the workspace source whose homes the packaged weights saw
     presets = {
         **DepthWarp.presets,
         "light": {},

@@ -123,6 +123,7 @@ class SynSinSynthesizer(Learned, Synthesizer):
     reloaded = ("net",)
     layouts = LAYOUTS
     packaged_weights = WEIGHTS_DIR
+    trained_on = "procedural"  # the workspace source whose homes the packaged weights saw
     consumes = frozenset({Data.RGB})
     produces = frozenset({Data.RGB, Data.DEPTH, Data.POINT_MAP})
     presets = {
