@@ -56,6 +56,8 @@ _EXPORTS = {
     "read_jsonl": "ssga_bench.io",
     "write_json": "ssga_bench.io",
     "read_png": "ssga_bench.io",
+    "read_rgb": "ssga_bench.io",
+    "fit_channel": "ssga_bench.io",
     "write_png": "ssga_bench.io",
     "depth_from_png16": "ssga_bench.io",
     "depth_to_png16": "ssga_bench.io",

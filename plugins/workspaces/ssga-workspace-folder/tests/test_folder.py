@@ -248,3 +248,20 @@ def test_config_validate_names_what_is_missing_before_anything_runs(tmp_path, ss
         validate_experiment({**base, "workspace": {**workspace, "floor_plan": "plan.json"}}, ssga_installed_registry)
     with pytest.raises(ConfigError, match=r"workspace.path: no such folder"):
         validate_experiment({**base, "workspace": {"name": "folder", "path": str(tmp_path / "nowhere")}}, ssga_installed_registry)
+
+
+def test_large_captures_are_read_reduced_with_their_depth(tmp_path, capsys):
+    import cv2
+
+    rows = make_folder(tmp_path, n=3)
+    view = open_folder(tmp_path, max_side=None).load(0)
+    for row in rows:  # each capture 4x larger, as a high-resolution camera takes them
+        for key in ("rgb", "depth"):
+            image = cv2.imread(str(tmp_path / row[key]), cv2.IMREAD_UNCHANGED)
+            cv2.imwrite(str(tmp_path / row[key]), cv2.resize(image, None, fx=4, fy=4, interpolation=cv2.INTER_NEAREST))
+    big = open_folder(tmp_path, max_side=view.camera.width)
+    assert "read reduced to" in capsys.readouterr().err
+    reduced = big.load(0)
+    assert big.camera == view.camera and reduced.rgb.shape == view.rgb.shape and reduced.depth.shape == view.depth.shape
+    np.testing.assert_allclose(reduced.depth, view.depth)  # nearest samples of a 4x nearest upscale: the same depths
+    assert np.abs(reduced.rgb.astype(int) - view.rgb.astype(int)).mean() < 2.0

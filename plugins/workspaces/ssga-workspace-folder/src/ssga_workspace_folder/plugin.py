@@ -18,7 +18,7 @@ import numpy as np
 from pydantic import Field
 
 from ssga_core import Camera, Data, InputError, Pose, SsgaError, StageConfig, View, WorkspaceSource, hookimpl
-from ssga_bench import depth_from_png16, ids_from_png16, read_json, read_jsonl, read_png
+from ssga_bench import depth_from_png16, fit_channel, ids_from_png16, read_json, read_jsonl, read_png, read_rgb
 from ssga_bench import FloorPlan
 from ssga_workspace_folder.floorplan import floor_plan_from_captures
 
@@ -41,6 +41,13 @@ class FolderConfig(StageConfig):
     )
     hfov_deg: float = Field(default=90.0, gt=0.0, lt=180.0, description="Horizontal field of view of the camera, degrees.")
     yaw_in_degrees: bool = Field(default=False, description="Read `yaw` in degrees instead of radians.")
+    max_side: int | None = Field(
+        default=1024,
+        ge=16,
+        le=16384,
+        description="Captures whose longest side is larger are read reduced to it (a JPEG decoded reduced, never whole), "
+        "their depth and ids with them by nearest samples; None: as captured.",
+    )
     plan_resolution: float = Field(default=0.1, ge=0.02, le=1.0, description="Derived floor plan: its grid, metres.")
     robot_radius: float = Field(
         default=0.3, gt=0.0, le=5.0, description="Derived floor plan: how far around each capture (and the path between) the floor is free, metres."
@@ -83,25 +90,32 @@ def parse_capture(row: dict[str, Any], root: Path, where: str, yaw_in_degrees: b
 class FolderWorkspace:
     """A :class:`ssga_bench.workspace.CapturedWorkspace` over the captures of one folder."""
 
-    def __init__(self, name: str, camera: Camera, floor_plan: FloorPlan, captures: list[Capture]) -> None:
+    def __init__(self, name: str, camera: Camera, floor_plan: FloorPlan, captures: list[Capture], max_side: int | None = None) -> None:
         self.name, self.camera, self.floor_plan = name, camera, floor_plan
         self._captures = captures
         self.captures = [c.pose for c in captures]
+        self.max_side = max_side
 
     def load(self, index: int) -> View:
         c = self._captures[index]
         semantic, instance = _single(c.semantic), _single(c.instance)
         try:
+            rgb, _ = read_rgb(c.rgb, self.max_side)
+            shape = rgb.shape[:2]
             return View(
-                rgb=read_png(c.rgb, color=True),
+                rgb=rgb,
                 pose=c.pose,
                 camera=self.camera,
-                depth=depth_of(c),
-                semantic=None if semantic is None else ids_from_png16(semantic),
-                instance=None if instance is None else ids_from_png16(instance),
+                depth=_fitted(depth_of(c), shape),
+                semantic=None if semantic is None else fit_channel(ids_from_png16(semantic), shape),
+                instance=None if instance is None else fit_channel(ids_from_png16(instance), shape),
             )
         except InputError as exc:
             raise InputError(f"{c.rgb}: {exc}") from None
+
+
+def _fitted(depth: np.ndarray | None, shape: tuple[int, int]) -> np.ndarray | None:
+    return None if depth is None else fit_channel(depth, shape)
 
 
 def depth_of(capture: Capture) -> np.ndarray | None:
@@ -180,8 +194,10 @@ class FolderWorkspaceSource(WorkspaceSource):
         ]
         if not captures:
             raise InputError(f"{captures_path}: no captures")
-        first = read_png(captures[0].rgb, color=True)
+        first, original = read_rgb(captures[0].rgb, config.max_side)
         camera = Camera(width=first.shape[1], height=first.shape[0], hfov_deg=config.hfov_deg)
+        if original:
+            print(f"{root}: captures of {original[0]} x {original[1]} read reduced to {camera.width} x {camera.height} (workspace.max_side)", file=sys.stderr)
         plan_path = root / config.floor_plan
         if plan_path.is_file() or not config.derive_floor_plan or config.floor_plan != DEFAULT_FLOOR_PLAN:
             floor_plan = FloorPlan.from_json(read_json(plan_path), str(plan_path))  # a hand-drawn plan wins
@@ -189,7 +205,7 @@ class FolderWorkspaceSource(WorkspaceSource):
             derived = floor_plan_from_captures(
                 [c.pose for c in captures],
                 camera,
-                (depth_of(c) for c in captures),
+                (_fitted(depth_of(c), first.shape[:2]) for c in captures),
                 resolution=config.plan_resolution,
                 robot_radius=config.robot_radius,
                 clearance=config.clearance,
@@ -199,7 +215,7 @@ class FolderWorkspaceSource(WorkspaceSource):
             # Said before anything runs, so a plan that looks wrong is seen before a build uses it.
             print(f"{root}: no {config.floor_plan}; {derived.describe()}", file=sys.stderr)
             floor_plan = derived.plan
-        return FolderWorkspace(root.resolve().name, camera, floor_plan, captures)
+        return FolderWorkspace(root.resolve().name, camera, floor_plan, captures, config.max_side)
 
 
 @hookimpl
