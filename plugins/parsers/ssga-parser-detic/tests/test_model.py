@@ -149,6 +149,17 @@ def test_optional_keys_are_accepted_with_or_without(net, released):
     load(DeticR50(), without | {k: released["model"][k] for k in ZS_WEIGHT_KEYS})  # a bare state dict
 
 
+def test_a_file_saved_by_a_newer_detectron2_loads_without_its_frozen_batch_norm_counters(net, released):
+    counters = {k.removesuffix("running_mean") + "num_batches_tracked": torch.tensor(0) for k in released["model"] if k.endswith(".running_mean")}
+    assert len(counters) > 40  # one per frozen batch norm of the backbone
+    fresh = DeticR50()
+    load(fresh, _with(released) | {"model": released["model"] | counters})
+    for key, value in net.state_dict().items():
+        assert torch.equal(fresh.state_dict()[key], value), key
+    stray = _error(net, _with(released, roi_heads__box_head__0__fc1__num_batches_tracked=torch.tensor(0)))
+    assert "1 unexpected: roi_heads.box_head.0.fc1.num_batches_tracked" in stray  # only a batch norm's counter goes
+
+
 def test_the_zero_shot_classifier_is_a_scaled_cosine_with_a_zero_background(net):
     embeddings = torch.randn(5, 512) * torch.arange(1, 6)[:, None]  # norms differ: they must not matter
     classifier = net.roi_heads.box_predictor[0].cls_score

@@ -77,6 +77,11 @@ def network_state(checkpoint: Any, who: str, path: Path | str, expected: str) ->
         value = rest.get(key)
         if value is not None and value.ndim == len(shape) and all(s in (None, d) for s, d in zip(shape, value.shape, strict=True)):
             del rest[key]
+    # detectron2 since May 2023 (d4a5f28e) gives FrozenBatchNorm2d a num_batches_tracked counter, so a
+    # file it saved again holds 53 of them; frozen statistics never count, and the 2022 release has none.
+    frozen = {key.removesuffix("running_mean") + "num_batches_tracked" for key in rest if key.endswith(".running_mean")}
+    for key in [k for k in rest if k in frozen and rest[k].ndim == 0]:
+        del rest[key]
     return rest
 
 
