@@ -11,6 +11,7 @@ demo: setup
 	$(BIN)/ssga demo
 
 test: setup
+	@scripts/test-deps.sh
 	$(BIN)/ruff check --quiet --select F,E9 ssga_core ssga_bench plugins examples tests benchmarks
 	SSGA_STRICT_PLUGINS=1 $(BIN)/python -m pytest -q
 

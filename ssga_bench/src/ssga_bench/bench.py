@@ -21,6 +21,7 @@ from ssga_bench.evaluation import METRIC_TITLES, METRICS, THIN, Report, differen
 from ssga_bench.execution import open_executor
 from ssga_bench.experiment import Progress, run
 from ssga_bench.io import atomic_write_bytes, writable_folder, write_json
+from ssga_bench.page import write_bench_page
 
 
 @dataclass(frozen=True)
@@ -98,6 +99,7 @@ def run_bench(
         out / "bench.json",
         {str(s): {"wall_s": r.wall, "phases": r.phases, "seconds": r.seconds, "views": r.views, "table": r.report.table} for s, r in runs.items()},
     )
+    write_bench_page(out, summary, sorted(runs))
     return summary, runs
 
 

@@ -175,6 +175,12 @@ class FeatureCache:
     def regions(self, parser: Parser, view: View) -> Regions:
         return self._cached(parser, view, parser.parse, _pack_regions, _unpack_regions)
 
+    def stored_regions(self, parser: ResolvedStage, view: View, key: str) -> Regions | None:
+        """The regions ``parser`` gave the view whose content key is ``key`` (:meth:`view_keys`),
+        read back without making the parser or parsing again; ``None`` if none are stored."""
+        self.know(view, key)
+        return self._load(parser, view, _unpack_regions)[1]  # type: ignore[arg-type]  # stage_key takes a resolved stage too
+
     def local_features(self, descriptor: LocalDescriptor, view: View) -> LocalFeatures:
         return self._cached(descriptor, view, descriptor.extract, _pack_local, _unpack_local)
 

@@ -50,17 +50,19 @@ from ssga_bench.config import Experiment, TrainingConfig
 from ssga_bench.dataset import Dataset, build_workspace
 from ssga_bench.evaluation import Report, truth_ranks
 from ssga_bench.execution import Executor, memo, open_executor
+from ssga_bench.figures import birdseye, scene_graph_pictures
 from ssga_bench.gcn import load_gcn, save_gcn, train_gcn
-from ssga_bench.io import atomic_write_bytes, load_npy, load_npz, npy_bytes, npz_bytes, read_json, warn, writable_folder, write_json
+from ssga_bench.io import atomic_write_bytes, load_npy, load_npz, npy_bytes, npz_bytes, read_json, warn, writable_folder, write_json, write_png
 from ssga_bench.learned import Learned
 from ssga_bench.matching import GraphMatcher
 from ssga_bench.oracle import TrueRender
+from ssga_bench.page import write_run_page
 from ssga_bench.protocol import Protocol, Sample
 from ssga_bench.queries import draw_queries, save_predictions
 from ssga_bench.tasks import chunks, span
 from ssga_bench.workspace import Workspace
 from ssga_core.config import ResolvedStage, ResolvedVariant
-from ssga_core.data import Data, SceneGraph, View
+from ssga_core.data import Data, Regions, SceneGraph, View
 from ssga_core.errors import MissingWeightsError, PluginError, SsgaError
 from ssga_core.geometry import Pose
 from ssga_core.pipeline import BoundVariant, CellTraining, Progress, PseudoView, build_graph, training_graphs
@@ -960,8 +962,29 @@ def run_experiment(
         real_of_cell = {s.cell: s for s in dataset.split("train")}
         class_views = {s.place: s if dataset.has_image(s) else real_of_cell[s.cell] for s in dataset.split("train") + dataset.split("target")}
         draw_queries(out / "queries", dataset, tests, ensemble[1], truth, class_views, n=config.ensemble.queries_to_draw)
+        draw_for_the_page(experiment, dataset, cache, out)
     write_json(out / "timings.json", timings.to_json())
+    write_run_page(out)
     return report, timings
+
+
+def draw_for_the_page(experiment: Experiment, dataset: Dataset, cache: FeatureCache, out: Path, views: int = 3) -> None:
+    """The run page's pictures (``page.py``): the workspace map, test cameras by level, and the
+    scene graphs of a few test views as the first variant with a parser cut them (its regions
+    read back from the feature cache: nothing is parsed again)."""
+    write_png(out / "workspace.png", birdseye(dataset, colour_by="level"))
+    parsing = next((rv for rv in experiment.variants if "parser" in rv.stages), None)
+    tests = dataset.split("test")
+    if parsing is None or not tests:
+        return
+    keys = cache.view_keys(dataset_identity(dataset))
+    samples = [tests[i] for i in np.linspace(0, len(tests) - 1, min(views, len(tests))).astype(int)]
+    parser = parsing.stages["parser"]
+
+    def stored(sample: Sample, view: View) -> Regions | None:
+        return cache.stored_regions(parser, view, keys[sample.id]) if sample.id in keys else None
+
+    scene_graph_pictures(dataset, stored, samples, out / "scene-graphs", title=parsing.label)
 
 
 def _renderable(experiment: Experiment) -> bool:
@@ -1000,4 +1023,5 @@ def run(
     report, ran = run_experiment(experiment, dataset, output, progress=progress, variant_progress=variant_progress, executor=executor)
     timings.add(ran)
     write_json(output / "timings.json", timings.to_json())
+    write_run_page(output)  # again: the timings now hold the workspace's build
     return report, timings

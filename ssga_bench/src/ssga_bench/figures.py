@@ -1,4 +1,5 @@
-"""Pictures of a dataset: a bird's-eye plan with cells and cameras, and a contact sheet of views.
+"""Pictures of a dataset: a bird's-eye plan with cells and cameras, a contact sheet of views,
+and the scene graphs a parser makes of a few of them.
 
 Drawn with OpenCV, which ssga already depends on, so no plotting stack is needed.
 """
@@ -7,6 +8,7 @@ from __future__ import annotations
 
 import colorsys
 import math
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 import cv2
@@ -14,6 +16,7 @@ import numpy as np
 import shapely
 
 from ssga_core.errors import InputError
+from ssga_core.data import Regions, View
 from ssga_bench.dataset import Dataset
 from ssga_bench.io import write_png
 from ssga_bench.protocol import Sample
@@ -121,3 +124,21 @@ def draw_workspace(*, dataset: Dataset, colour_by: str = "class", out: Path | No
     write_png(plan_png, birdseye(dataset, colour_by=colour_by))
     write_png(sheet_png, contact_sheet(dataset))
     return plan_png, sheet_png
+
+
+def scene_graph_pictures(dataset: Dataset, regions_of: Callable[[Sample, View], Regions | None], samples: Sequence[Sample], out: Path, title: str) -> list[Path]:
+    """Each sample view's scene graph from the regions ``regions_of`` gives it (skipped where
+    it gives none), drawn into ``out/<id>.png`` as ``ssga parse`` draws it."""
+    from ssga_bench.parse import scene_graph
+    from ssga_bench.scene_graph_figure import draw_scene_graph
+
+    paths = []
+    for sample in samples:
+        view = dataset.view(sample)
+        regions = regions_of(sample, view)
+        if regions is None:
+            continue
+        path = out / f"{sample.id}.png"
+        write_png(path, draw_scene_graph(view.rgb, regions, scene_graph(view, regions), title=title))
+        paths.append(path)
+    return paths

@@ -34,7 +34,7 @@ def _print_result(console: Console, report: Report, output: Path) -> None:
     # The table needs ~120 columns; rich assumes 80 when output is not a terminal.
     console.width = max(console.width, 124)
     console.print(result_table(report))
-    console.print(f"report: {output / 'report.md'}, {output / 'results.csv'}, {output / 'results.png'}")
+    console.print(f"report: {output / 'index.html'} (the run on one page), {output / 'report.md'}, {output / 'results.csv'}, {output / 'results.png'}")
 
 
 def with_execution(experiment: Experiment, executor: str | None, workers: int | None, address: str | None) -> Experiment:
@@ -105,6 +105,8 @@ def bench_cli(
             variant_progress=bars.variant,
         )
     console.print(summary)
+    folder = output or base.config.output
+    console.print(f"bench: {folder / 'index.html'} (every seed on one page), {folder / 'bench.md'}")
 
 
 def register(app: typer.Typer) -> None:
