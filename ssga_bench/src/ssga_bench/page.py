@@ -15,7 +15,7 @@ from __future__ import annotations
 import html
 import json
 import re
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from pathlib import Path
 
 from ssga_bench.io import atomic_write_bytes
@@ -87,7 +87,7 @@ def _inline(text: str) -> str:
     return re.sub(r"(?<!\w)_(.+?)_(?!\w)", r"<em>\1</em>", text)
 
 
-def _figures(paths: Iterable[str], caption: callable = lambda p: Path(p).stem) -> str:  # type: ignore[valid-type]
+def _figures(paths: Iterable[str], caption: Callable[[str], str] = lambda p: Path(p).stem) -> str:
     figures = [f'<figure><a href="{html.escape(p)}"><img src="{html.escape(p)}" alt="{html.escape(caption(p))}" loading="lazy"></a>'
                f"<figcaption>{html.escape(caption(p))}</figcaption></figure>" for p in paths]  # fmt: skip
     return f'<div class="gallery">{"".join(figures)}</div>' if figures else "<p>none</p>"
