@@ -49,16 +49,19 @@ from ssga_bench.io import (
     read_jsonl,
     png_bytes,
     read_png,
+    warn,
     write_json,
     write_jsonl,
 )
 from ssga_bench.execution import Executor
-from ssga_bench.protocol import Grid, Plan, Protocol, ProtocolConfig, Sample
+from ssga_bench.protocol import Grid, Plan, Protocol, ProtocolConfig, Sample, fit_protocol
 from ssga_bench.workspace import AnyWorkspace, FloorPlan, Workspace
 
 FORMAT = 1
 CHANNELS = ("rgb", "depth", "semantic", "instance")
-RECORDS = ("manifest.jsonl", "plan.json", "floorplan.json", "dataset.json")
+FITTED = "fitted.json"
+"""The protocol values a build chose because the configured ones did not fit the workspace (``protocol.fit``)."""
+RECORDS = ("manifest.jsonl", "plan.json", FITTED, "floorplan.json", "dataset.json")
 """The dataset's own files, in the order a replaced dataset's are deleted (the header last)."""
 _SAMPLE_ID = re.compile(r"[A-Za-z0-9][A-Za-z0-9_-]*")
 """What a sample id ssga writes looks like (no path separator, no leading dot)."""
@@ -85,7 +88,9 @@ def _header(workspace: AnyWorkspace, source: dict[str, Any], protocol: ProtocolC
         "format": FORMAT,
         "workspace": workspace.name,
         "source": source,
-        "protocol": protocol.model_dump(mode="json"),
+        # Without `fit`: it changes nothing a finished dataset holds (a fitted one says so in fitted.json),
+        # so datasets built before it existed, and with either setting, stay the same.
+        "protocol": protocol.model_dump(mode="json", exclude={"fit"}),
         "camera": {"width": cam.width, "height": cam.height, "hfov_deg": cam.hfov_deg},
     }
 
@@ -113,11 +118,12 @@ def build_workspace(
 
     workspace = opened_workspace(source)  # the serial executor's task finds it open
     record = {"name": source.name, **source.config.model_dump(mode="json")}
+    fit = protocol.fit == "auto" or (protocol.fit is None and source.cls.fits_protocol)
     if out is None:
-        digest = hashlib.blake2b(json.dumps([record, protocol.model_dump(mode="json")], sort_keys=True).encode(), digest_size=4)
+        digest = hashlib.blake2b(json.dumps([record, protocol.model_dump(mode="json", exclude={"fit"})], sort_keys=True).encode(), digest_size=4)
         out = Path("runs") / "workspaces" / f"{workspace.name}-{digest.hexdigest()}"
     return build_dataset(
-        workspace, out, source=record, protocol=protocol, overwrite=overwrite, progress=progress, render=(executor, source, batch) if executor else None
+        workspace, out, source=record, protocol=protocol, overwrite=overwrite, progress=progress, render=(executor, source, batch) if executor else None, fit=fit
     )
 
 
@@ -130,6 +136,7 @@ def build_dataset(
     overwrite: bool = False,
     progress: Callable[[str, int, int], None] | None = None,
     render: tuple[Executor, ResolvedStage, int] | None = None,
+    fit: bool = False,
 ) -> Dataset:
     """Plan and render a benchmark workspace into ``out`` (resuming a build left unfinished).
 
@@ -146,6 +153,9 @@ def build_dataset(
         render: ``(executor, source, batch)``: render on the executor's workers, each
             opening ``source`` (the workspace's source) itself, ``batch`` views per task;
             default: here, with ``workspace``.
+        fit: where the protocol does not fit the workspace, plan with values that do
+            (:func:`~ssga_bench.protocol.fit_protocol`), say which on stderr and record them
+            in ``fitted.json``; else the planning error stands.
     """
     out = Path(out)
     if out.exists() and not out.is_dir():
@@ -167,12 +177,24 @@ def build_dataset(
     if (out / "plan.json").exists():
         plan = _read_plan(out, workspace.name, protocol)
     else:
-        protocol_run = Protocol(workspace.floor_plan, workspace.camera, protocol)
-        if captured:
-            plan = protocol_run.select(workspace.name, workspace.captures)
-        else:
+        def planned(config: ProtocolConfig) -> Plan:
+            protocol_run = Protocol(workspace.floor_plan, workspace.camera, config)
+            if captured:
+                return protocol_run.select(workspace.name, workspace.captures)
             report = (lambda done, total: progress("plan", done, total)) if progress else None
-            plan = protocol_run.plan(workspace.name, workspace.camera_height, report)
+            return protocol_run.plan(workspace.name, workspace.camera_height, report)
+
+        try:
+            plan = planned(protocol)
+        except InputError as failure:
+            if not fit:
+                raise
+            height = float(np.median([p.height for p in workspace.captures])) if captured else workspace.camera_height  # as planning takes it
+            fitted, changes = fit_protocol(workspace.floor_plan, workspace.camera, protocol, height=height, captures=workspace.captures if captured else None)
+            plan = planned(fitted)
+            chose = ", ".join(f"protocol.{k} = {v:g} (configured {getattr(protocol, k):g})" for k, v in changes.items())
+            warn(f"workspace {workspace.name!r}: the protocol was fitted to it: {chose}; as configured: {failure}")
+            write_json(out / FITTED, {"fitted": changes, "configured": {k: getattr(protocol, k) for k in changes}, "because": str(failure)})
         write_json(out / "plan.json", {"grid": asdict(plan.grid), "cells": list(plan.cells), "samples": [sample_record(s) for s in plan.samples]})
 
     # A captured workspace cannot show its synthesis targets: they have no image.
@@ -256,6 +278,8 @@ def _manifest_row(out: Path, sample: Sample) -> dict[str, Any]:
 def _read_plan(out: Path, name: str, config: ProtocolConfig) -> Plan:
     raw = read_json(out / "plan.json")
     try:
+        if (out / FITTED).exists():  # planned with the values fitted to the workspace, not the configured ones
+            config = config.model_copy(update=read_json(out / FITTED)["fitted"])
         grid = Grid(**raw["grid"])
         return Plan(name, config, grid, tuple(raw["cells"]), tuple(sample_from_record(r) for r in raw["samples"]))
     except (KeyError, TypeError) as exc:

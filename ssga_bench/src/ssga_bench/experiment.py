@@ -47,7 +47,7 @@ import numpy as np
 from ssga_bench.bow import normalise_rows
 from ssga_bench.cache import FeatureCache, stage_key
 from ssga_bench.config import Experiment, TrainingConfig
-from ssga_bench.dataset import Dataset, build_workspace
+from ssga_bench.dataset import FITTED, Dataset, build_workspace
 from ssga_bench.evaluation import Report, truth_ranks
 from ssga_bench.execution import Executor, memo, open_executor
 from ssga_bench.figures import birdseye, scene_graph_pictures
@@ -963,6 +963,12 @@ def run_experiment(
         class_views = {s.place: s if dataset.has_image(s) else real_of_cell[s.cell] for s in dataset.split("train") + dataset.split("target")}
         draw_queries(out / "queries", dataset, tests, ensemble[1], truth, class_views, n=config.ensemble.queries_to_draw)
         draw_for_the_page(experiment, dataset, cache, out)
+        # The protocol values a build chose for this workspace (protocol.fit): part of what this run is.
+        fitted = dataset.root / FITTED
+        if fitted.exists():
+            atomic_write_bytes(out / "protocol-fitted.json", fitted.read_bytes())
+        else:
+            (out / "protocol-fitted.json").unlink(missing_ok=True)
     write_json(out / "timings.json", timings.to_json())
     write_run_page(out)
     return report, timings

@@ -121,8 +121,12 @@ def write_run_page(out: Path) -> Path:
     scene graphs, timings); whatever is missing is left out. Returns its path."""
     report = (out / "report.md").read_text()
     title = report.splitlines()[0].lstrip("# ").strip() if report else out.name
-    files = _present(out, ["report.md", "results.csv", "results.png", "predictions.jsonl", "timings.json", "fusion.json"])
+    files = _present(out, ["report.md", "results.csv", "results.png", "predictions.jsonl", "timings.json", "fusion.json", "protocol-fitted.json"])
     body = ["<nav>" + "".join(f'<a href="{f}">{f}</a>' for f in files) + "</nav>"]
+    if (out / "protocol-fitted.json").is_file():
+        fitted = json.loads((out / "protocol-fitted.json").read_text())
+        chose = ", ".join(f"{k} = {v:g} (configured {fitted['configured'][k]:g})" for k, v in fitted["fitted"].items())
+        body.append(f"<p><strong>The protocol was fitted to this workspace:</strong> {html.escape(chose)}, because as configured: {html.escape(fitted['because'])}</p>")
     body.append("<h2>Table 1: Top-1, Top-5 and MRR per difficulty level</h2>" + markdown_html("\n".join(report.splitlines()[1:])))
     if "results.png" in files:
         body.append('<h2>Per level, with 95% intervals</h2><img src="results.png" alt="results per level">')

@@ -123,6 +123,12 @@ class ProtocolConfig(BaseModel):
         description="Levels from the VO with the class's training viewpoint ('class') or with the cell's one real image ('landmark').",
     )
     max_candidates: int = Field(default=200, ge=1, le=100_000, description="Candidate poses tried per test view wanted before giving up.")
+    fit: Literal["auto", "fixed"] | None = Field(
+        default=None,
+        description="'auto': where the configured cell_size, viewpoint_distance or test_radius do not fit the workspace, "
+        "choose values that do, say which and record them (the dataset's fitted.json); 'fixed': fail, naming what would fit. "
+        "Left out: the workspace source's default (auto for meshes and captured folders, fixed for the embedded homes).",
+    )
     seed: int = Field(default=0, ge=0, lt=2**32, description="Seed of every random draw of the protocol.")
 
     @field_validator("level_bounds")
@@ -625,6 +631,40 @@ def suggestion_kinds(fits: Sequence[Fit], config: ProtocolConfig) -> list[Fit]:
             firsts.setdefault(frozenset(fit.changes(config)), fit)
     single = [fit for kind, fit in firsts.items() if len(kind) == 1]
     return single or list(firsts.values())
+
+
+def fit_protocol(
+    floor_plan: FloorPlan, camera: Camera, config: ProtocolConfig, *, height: float, captures: Sequence[Pose] | None = None
+) -> tuple[ProtocolConfig, dict[str, float]]:
+    """``config`` with the cell size, viewpoint distance and test radius that fit this floor plan,
+    and the values changed: the nearest change that gives ``config.cells`` cells seen from every
+    heading (:func:`suggest`), and, for a rendered workspace, a test radius that places every
+    test view (checked by planning it).
+
+    Raises:
+        InputError: no value tried fits, naming every setting that would, at once.
+    """
+    suggestion = suggest(floor_plan, camera, config, height=height, captures=captures, limit=config.cells, stop_after=1, check_test_radius=captures is None)
+    best = suggestion.best
+    if best is None:
+        most = max(suggestion.fits, key=lambda f: f.cells)
+        raise InputError(
+            f"protocol: no cell_size ({', '.join(f'{v:g}' for v in CELL_SIZES)} m) with any viewpoint_distance "
+            f"({', '.join(f'{v:g}' for v in VIEWPOINT_DISTANCES)} m) gives {config.cells} cells seen from all {config.orientations} "
+            f"headings here; at most {most.cells} ({most.describe(config)}): lower protocol.cells to {most.cells}"
+            + (f" with {most.describe(config)}" if most.changes(config) else "")
+        )
+    changes: dict[str, float] = dict(best.changes(config))
+    if captures is None:
+        if suggestion.test_radius is None:
+            raise InputError(
+                f"protocol: with {best.describe(config) if best.changes(config) else 'the configured cells'}, the test views cannot all be placed at any test_radius tried "
+                f"({', '.join(f'{r:g}' for r in (config.test_radius, *TEST_RADII))} m); lower protocol.test_per_class "
+                f"(now {config.test_per_class}) and protocol.val_per_class, or raise protocol.max_candidates (now {config.max_candidates})"
+            )
+        if suggestion.test_radius != config.test_radius:
+            changes["test_radius"] = suggestion.test_radius
+    return config.model_copy(update=changes), changes
 
 
 def suggest(

@@ -351,6 +351,10 @@ class WorkspaceSource(Stage):
 
     kind = "workspace"
     produces = frozenset({Data.RGB})
+    fits_protocol: ClassVar[bool] = False
+    """Whether a protocol whose cells, viewpoints or test radius do not fit this source's
+    scenes is fitted to them by default (``protocol.fit``): a user's scans and captures vary
+    in size and shape; generated homes are made for the configured protocol."""
 
     @classmethod
     def carries(cls, config: StageConfig) -> frozenset[Data]:

@@ -144,7 +144,7 @@ def test_a_real_textured_room_through_the_whole_protocol(room_file, tmp_path, mo
     config.write_text(
         f'output = "{tmp_path / "out"}"\nvariants = ["PD", "SD", "D"]\n'
         f'[workspace]\nname = "mesh"\npath = "{room_file}"\nup_axis = "auto"\nwidth = 128\nheight = 128\n'
-        "[protocol]\ncell_size = 1.0\ncells = 2\ntest_per_class = 1\nseed = 1\n"
+        "[protocol]\ncells = 5\ntest_per_class = 1\nseed = 1\n"  # the default 2 m cells: too large for 5 in this room
         '[stages]\nparser = { name = "slico", preset = "coarse" }\ndescriptor = { name = "dense-sift", bow = { k = 16 } }\n'
         'synthesizer = { name = "depth-warp" }\n[training]\nepochs = 5\nhidden = 32\nsynthetic_per_class = 1\n'
     )
@@ -152,6 +152,11 @@ def test_a_real_textured_room_through_the_whole_protocol(room_file, tmp_path, mo
     assert result.exit_code == 0, result.output
     rows = list(csv.DictReader((tmp_path / "out" / "results.csv").open()))
     assert {"SIFT-SL (PD)", "SIFT (SD)", "SIFT (D)", "Ensemble (RRF)"} <= {r["row"] for r in rows}
-    assert int(next(r for r in rows if r["group"] == "all")["n"]) == 2 * 12
+    assert int(next(r for r in rows if r["group"] == "all")["n"]) == 5 * 12
     dataset = json.loads(next((tmp_path / "runs" / "workspaces").glob("room-*/dataset.json")).read_text())
     assert dataset["source"]["up_axis"] == "auto"
+    # A scan fits the protocol to itself on the first try (protocol.fit: the mesh source's default), says so and records it.
+    fitted = json.loads((tmp_path / "out" / "protocol-fitted.json").read_text())
+    assert fitted["configured"]["cell_size"] == 2.0 and fitted["fitted"]["cell_size"] < 2.0
+    assert "the protocol was fitted to it: protocol.cell_size" in result.output
+    assert "The protocol was fitted to this workspace" in (tmp_path / "out" / "index.html").read_text()

@@ -142,6 +142,7 @@ class FolderWorkspaceSource(WorkspaceSource):
     """Views that were captured rather than rendered: the protocol selects among them."""
 
     name = "folder"
+    fits_protocol = True  # a user's scan or captures: the protocol is fitted to them where it does not fit (protocol.fit)
     Config = FolderConfig
     produces = frozenset({Data.RGB, Data.DEPTH, Data.SEMANTIC})
 

@@ -78,6 +78,7 @@ class MeshWorkspaceSource(WorkspaceSource):
     """Views of a triangle mesh: RGB from its textures or colours, planar depth, semantic and instance ids."""
 
     name = "mesh"
+    fits_protocol = True  # a user's scan or captures: the protocol is fitted to them where it does not fit (protocol.fit)
     Config = MeshConfig
     produces = frozenset({Data.RGB, Data.DEPTH, Data.SEMANTIC})
 
