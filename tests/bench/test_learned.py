@@ -10,6 +10,7 @@ from ssga_bench.learned import (
     Learned,
     LearnedConfig,
     checkpoint_bytes,
+    file_stamp,
     find_weights,
     load_checkpoint,
     load_strict,
@@ -167,3 +168,24 @@ def test_packaged_weights_on_another_kind_of_workspace_are_flagged(tmp_path):
     assert Stage.out_of_domain(LearnedConfig(weights="light.pt"), "procedural") == ""  # the homes they were trained on
     assert Stage.out_of_domain(LearnedConfig(weights=str(tmp_path / "official.pt")), "mesh") == ""  # a user's file
     assert Stage.out_of_domain(LearnedConfig(weights="random"), "mesh") == ""  # labelled as random already
+
+
+def test_what_a_stage_loads_is_loaded_once_per_process_and_key(tmp_path):
+    loads = []
+
+    class Stage(Learned):
+        kind, name = "descriptor", "x"
+        config = LearnedConfig()
+
+    class Other(Stage):
+        name = "y"
+
+    weights = tmp_path / "w.pt"
+    weights.write_bytes(b"one")
+    key = (file_stamp(weights), "light", "cpu")
+    first = Stage().once_per_process(key, lambda: loads.append("x") or object())
+    assert Stage().once_per_process(key, lambda: loads.append("again") or object()) is first  # another instance: shared
+    Other().once_per_process(key, lambda: loads.append("y") or object())  # another stage: its own
+    weights.write_bytes(b"changed")  # a new file under the same name: loaded anew
+    Stage().once_per_process((file_stamp(weights), "light", "cpu"), lambda: loads.append("x2") or object())
+    assert loads == ["x", "y", "x2"]

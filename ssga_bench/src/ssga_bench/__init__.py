@@ -29,6 +29,7 @@ _EXPORTS = {
     "load_checkpoint": "ssga_bench.learned",
     "load_strict": "ssga_bench.learned",
     "Layout": "ssga_bench.learned",
+    "file_stamp": "ssga_bench.learned",
     "read_layout": "ssga_bench.learned",
     "meta_shapes": "ssga_bench.learned",
     "tensor_state": "ssga_bench.learned",

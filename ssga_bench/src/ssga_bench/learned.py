@@ -29,11 +29,12 @@ Conventions (the same in every learned plugin):
 from __future__ import annotations
 
 import io
+import threading
 import warnings
 from collections.abc import Callable, Hashable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, ClassVar, Literal
+from typing import TYPE_CHECKING, Any, ClassVar, Literal, TypeVar
 
 from pydantic import Field
 
@@ -42,6 +43,8 @@ from ssga_core.stages import StageConfig
 
 if TYPE_CHECKING:  # torch loads when a network is built, not when a plugin registers (`ssga --help` stays fast)
     import torch
+
+T = TypeVar("T")
 
 RANDOM_WEIGHTS = "random"
 """The ``weights`` value for random initialisation (tests only; every output says so)."""
@@ -98,6 +101,17 @@ class Learned:
     def caveat(cls, config: Any) -> str:
         return "random weights" if getattr(config, "weights", None) == RANDOM_WEIGHTS else ""
 
+    def once_per_process(self, key: tuple[Any, ...], load: Callable[[], T]) -> T:
+        """``load()``'s result for ``key``, made once per process and shared by every instance and
+        thread of this stage with the same key: a network is read from its file once, however many
+        variants use it. ``key`` holds what the result depends on: the files' :func:`file_stamp`
+        (or ``RANDOM_WEIGHTS``), the config fields that build it, the device."""
+        key = (self.kind, self.name, *key)
+        with _LOADED_LOCK:
+            if key not in _LOADED:
+                _LOADED[key] = load()
+            return _LOADED[key]  # type: ignore[no-any-return]
+
     @classmethod
     def out_of_domain(cls, config: Any, workspace: str) -> str:
         """What a report says when ``config`` runs the packaged weights, trained on
@@ -122,6 +136,16 @@ class Learned:
     def weights_file(self, packaged: Path | None = None) -> Path:
         """The checkpoint ``config.weights`` names (it must exist), looked up in ``packaged`` first."""
         return find_weights(self.config.weights, packaged, f"{self.kind} {self.name!r}")
+
+
+_LOADED: dict[tuple[Any, ...], Any] = {}
+_LOADED_LOCK = threading.Lock()
+
+
+def file_stamp(path: Path) -> tuple[str, int, int]:
+    """A file's identity for a cache of what was loaded from it: its path, modification time and size."""
+    stat = path.stat()
+    return str(path), stat.st_mtime_ns, stat.st_size
 
 
 def resolve_device(choice: str, who: str = "stage") -> torch.device:

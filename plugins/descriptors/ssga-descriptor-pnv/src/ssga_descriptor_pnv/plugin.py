@@ -16,7 +16,6 @@ and its cluster count and WPCA size are read from it, as Patch-NetVLAD's loader 
 
 from __future__ import annotations
 
-import threading
 from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal
@@ -31,6 +30,7 @@ from ssga_bench import (
     BoWDescriptorConfig,
     Layout,
     Learned,
+    file_stamp,
     LearnedConfig,
     load_checkpoint,
     load_strict,
@@ -106,10 +106,6 @@ class PnvConfig(BoWDescriptorConfig, LearnedConfig):
         return self
 
 
-_NETWORKS: dict[tuple[Any, ...], PatchNetVLAD] = {}
-_LOCK = threading.Lock()
-
-
 class Pnv(Learned, BoWDescriptor):
     """Patch-NetVLAD patch descriptors at their patch centres; node features are BoW histograms.
 
@@ -142,18 +138,14 @@ class Pnv(Learned, BoWDescriptor):
         """The network, once per process per file; ``self.config`` gets the file's ``network`` and ``num_pcs``."""
         cfg: PnvConfig = self.config  # type: ignore[assignment]
         device = self.device
+        path = None if self.random_weights else self.weights_file(WEIGHTS_DIR).resolve()
+
+        def load() -> tuple[PatchNetVLAD, dict[str, Any]]:
+            net, fields = self._random() if path is None else self._from_file(path)
+            return net.to(device).eval(), fields
+
         shape = (cfg.network, cfg.num_pcs, cfg.patch_size, cfg.stride, str(device))
-        if self.random_weights:
-            key: tuple[Any, ...] = (RANDOM_WEIGHTS, *shape)
-        else:
-            path = self.weights_file(WEIGHTS_DIR).resolve()
-            stat = path.stat()
-            key = (str(path), stat.st_mtime_ns, stat.st_size, *shape)
-        with _LOCK:
-            if key not in _NETWORKS:
-                net, fields = self._random() if self.random_weights else self._from_file(path)
-                _NETWORKS[key] = (net.to(device).eval(), fields)
-            net, fields = _NETWORKS[key]
+        net, fields = self.once_per_process((RANDOM_WEIGHTS if path is None else file_stamp(path), *shape), load)
         self.config = cfg.model_copy(update=fields)
         return net
 

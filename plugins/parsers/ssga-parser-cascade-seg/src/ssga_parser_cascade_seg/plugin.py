@@ -20,7 +20,6 @@ decoder's last layer says the vocabulary.
 from __future__ import annotations
 
 import difflib
-import threading
 from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import Annotated, Any, Literal, Self
@@ -33,6 +32,7 @@ from ssga_bench import (
     RANDOM_WEIGHTS,
     Layout,
     Learned,
+    file_stamp,
     LearnedConfig,
     load_checkpoint,
     load_strict,
@@ -156,8 +156,6 @@ class CascadeSegConfig(LearnedConfig):
         return self
 
 
-_NETWORKS: dict[tuple[Any, ...], Any] = {}
-_LOCK = threading.Lock()
 
 
 class CascadeSeg(Learned, Parser):
@@ -219,19 +217,15 @@ class CascadeSeg(Learned, Parser):
         """The network, once per process per folder; ``self.config`` gets the files' ``network`` and ``classes``."""
         cfg: CascadeSegConfig = self.config  # type: ignore[assignment]
         device = self.device
+        folder = None if self.random_weights else self.weights_folder().resolve()
+
+        def load():  # -> (SceneParser, fields)
+            net, fields = self._random() if folder is None else self._from_folder(folder)
+            return net.to(device).eval(), fields
+
+        files = (RANDOM_WEIGHTS,) if folder is None else tuple(file_stamp(folder / name) for name in FILES.values())
         shape = (cfg.network, cfg.classes, str(device))  # as given: a field set against the files must still fail
-        if self.random_weights:
-            key: tuple[Any, ...] = (RANDOM_WEIGHTS, *shape)
-            folder = None
-        else:
-            folder = self.weights_folder().resolve()
-            stamps = tuple((s.st_mtime_ns, s.st_size) for s in ((folder / name).stat() for name in FILES.values()))
-            key = (str(folder), stamps, *shape)
-        with _LOCK:
-            if key not in _NETWORKS:
-                net, fields = self._random() if folder is None else self._from_folder(folder)
-                _NETWORKS[key] = (net.to(device).eval(), fields)
-            net, fields = _NETWORKS[key]
+        net, fields = self.once_per_process((*files, *shape), load)
         self.config = cfg.model_copy(update=fields)
         return net
 

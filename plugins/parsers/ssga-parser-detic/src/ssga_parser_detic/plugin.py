@@ -15,14 +15,13 @@ experiment reports its rows as not run.
 
 from __future__ import annotations
 
-import threading
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
 from pydantic import Field
 
-from ssga_bench import RANDOM_WEIGHTS, Layout, Learned, LearnedConfig, find_weights, load_checkpoint
+from ssga_bench import RANDOM_WEIGHTS, Layout, Learned, LearnedConfig, file_stamp, find_weights, load_checkpoint
 
 if TYPE_CHECKING:  # torch loads when the parser is made, not when the plugin registers
     from ssga_parser_detic.model import Settings
@@ -90,10 +89,6 @@ class DeticConfig(LearnedConfig):
     )
 
 
-_NETWORKS: dict[tuple[Any, ...], Any] = {}
-_LOCK = threading.Lock()
-
-
 class DeticParser(Learned, Parser):
     """Detic's instance masks, one region per detection, with class names and scores.
 
@@ -148,14 +143,15 @@ class DeticParser(Learned, Parser):
         names_file = find_weights(cfg.class_names, near, self.who, "class_names", NAMES_EXPECTED)
         names = read_names(names_file, self.who)
         files = [f for f in (checkpoint, vocabulary) if f is not None]
-        key = (RANDOM_WEIGHTS if checkpoint is None else "", *(_identity(f) for f in files), str(self.device))
-        with _LOCK:
-            if key not in _NETWORKS:
-                embeddings = read_embeddings(vocabulary, self.who)
-                net = self._random() if checkpoint is None else self._from_file(checkpoint)
-                net.set_vocabulary(torch.from_numpy(embeddings))
-                _NETWORKS[key] = net.to(self.device).eval()
-            net = _NETWORKS[key]
+
+        def load():  # -> DeticR50
+            embeddings = read_embeddings(vocabulary, self.who)
+            net = self._random() if checkpoint is None else self._from_file(checkpoint)
+            net.set_vocabulary(torch.from_numpy(embeddings))
+            return net.to(self.device).eval()
+
+        key = (RANDOM_WEIGHTS if checkpoint is None else "", *(file_stamp(f.resolve()) for f in files), str(self.device))
+        net = self.once_per_process(key, load)
         if net.num_classes != len(names):
             raise CheckpointError(
                 f"{self.who}: config field 'class_names': {names_file} names {len(names)} classes, but the vocabulary "
@@ -227,11 +223,6 @@ def pixel_centre_boxes(boxes: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
     out[:, 0::2] = out[:, 0::2].clip(0, w - 1)
     out[:, 1::2] = out[:, 1::2].clip(0, h - 1)
     return out
-
-
-def _identity(path: Path) -> tuple[str, int, int]:
-    stat = path.stat()
-    return (str(path.resolve()), stat.st_mtime_ns, stat.st_size)
 
 
 @hookimpl

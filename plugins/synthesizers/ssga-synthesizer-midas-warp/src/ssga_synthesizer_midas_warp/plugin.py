@@ -32,6 +32,7 @@ from ssga_bench import (
     RANDOM_WEIGHTS,
     Layout,
     Learned,
+    file_stamp,
     LearnedConfig,
     load_checkpoint,
     load_strict,
@@ -102,10 +103,6 @@ class MidasWarpConfig(DepthWarpConfig, LearnedConfig):
         return self
 
 
-_NETWORKS: dict[tuple[Any, ...], Any] = {}
-_NETWORKS_LOCK = threading.Lock()
-
-
 class MidasWarp(Learned, DepthWarp):
     """Estimates each view's metric depth with MiDaS, then warps it as depth-warp does.
 
@@ -146,18 +143,13 @@ class MidasWarp(Learned, DepthWarp):
         first, which the calibration is checked against."""
         cfg: MidasWarpConfig = self.config  # type: ignore[assignment]
         device = self.device
-        if self.random_weights:
-            key: tuple[Any, ...] = (RANDOM_WEIGHTS, cfg.network, str(device))
-            path = None
-        else:
-            path = self.weights_file(WEIGHTS_DIR).resolve()
-            stat = path.stat()
-            key = (str(path), stat.st_mtime_ns, stat.st_size, cfg.network, str(device))
-        with _NETWORKS_LOCK:
-            if key not in _NETWORKS:
-                net, fields = self._random() if path is None else self._from_file(path)
-                _NETWORKS[key] = (net.to(device).eval(), fields, "" if path is None else sha256_file(path))
-            net, fields, sha = _NETWORKS[key]
+        path = None if self.random_weights else self.weights_file(WEIGHTS_DIR).resolve()
+
+        def load() -> tuple[Any, dict[str, Any], str]:
+            net, fields = self._random() if path is None else self._from_file(path)
+            return net.to(device).eval(), fields, "" if path is None else sha256_file(path)
+
+        net, fields, sha = self.once_per_process((RANDOM_WEIGHTS if path is None else file_stamp(path), cfg.network, str(device)), load)
         self.config = cfg.model_copy(update=fields)
         return net, self._calibration(path, sha)
 

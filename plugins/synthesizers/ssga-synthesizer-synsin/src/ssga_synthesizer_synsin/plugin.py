@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import threading
 from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal
@@ -31,6 +30,7 @@ from ssga_bench import (
     RANDOM_WEIGHTS,
     Layout,
     Learned,
+    file_stamp,
     LearnedConfig,
     load_checkpoint,
     load_strict,
@@ -110,8 +110,6 @@ EXPECTED = (
 )
 """What a ``weights`` file should hold, as errors say it."""
 
-_NETWORKS: dict[tuple[Any, ...], tuple[torch.nn.Module, dict[str, Any]]] = {}
-_LOCK = threading.Lock()
 
 
 class SynSinSynthesizer(Learned, Synthesizer):
@@ -153,17 +151,13 @@ class SynSinSynthesizer(Learned, Synthesizer):
         """The network, once per process per file; ``self.config`` gets the file's ``network``."""
         cfg: SynSinConfig = self.config  # type: ignore[assignment]
         device = self.device
-        if self.random_weights:
-            key: tuple[Any, ...] = (RANDOM_WEIGHTS, cfg.network, str(device))
-        else:
-            path = self.weights_file(WEIGHTS_DIR).resolve()
-            stat = path.stat()
-            key = (str(path), stat.st_mtime_ns, stat.st_size, cfg.network, str(device))
-        with _LOCK:
-            if key not in _NETWORKS:
-                net, fields = self._random() if self.random_weights else self._from_file(path)
-                _NETWORKS[key] = (net.to(device).eval(), fields)
-            net, fields = _NETWORKS[key]
+        path = None if self.random_weights else self.weights_file(WEIGHTS_DIR).resolve()
+
+        def load() -> tuple[torch.nn.Module, dict[str, Any]]:
+            net, fields = self._random() if path is None else self._from_file(path)
+            return net.to(device).eval(), fields
+
+        net, fields = self.once_per_process((RANDOM_WEIGHTS if path is None else file_stamp(path), cfg.network, str(device)), load)
         self.config = cfg.model_copy(update=fields)
         return net
 
