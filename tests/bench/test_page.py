@@ -70,8 +70,7 @@ def ssga_plugin_set_module():
     from ssga_bench import testing
     from ssga_core.testing import get_plugin_manager, stages
 
-    manager = get_plugin_manager()
-    manager.load_entry_points()
+    manager = get_plugin_manager()  # the installed plugins, and the stand-ins beside them
     manager.register(stages, "stand-ins")
     manager.register(testing, "stand-in-workspaces")
     return manager.registry()

@@ -54,7 +54,7 @@ from ssga_bench.io import (
     write_jsonl,
 )
 from ssga_bench.execution import Executor
-from ssga_bench.protocol import Grid, Plan, Protocol, ProtocolConfig, Sample, fit_protocol
+from ssga_bench.protocol import Grid, Plan, Protocol, ProtocolConfig, Sample, capture_height, fit_protocol
 from ssga_bench.workspace import AnyWorkspace, FloorPlan, Workspace
 
 FORMAT = 1
@@ -189,7 +189,7 @@ def build_dataset(
         except InputError as failure:
             if not fit:
                 raise
-            height = float(np.median([p.height for p in workspace.captures])) if captured else workspace.camera_height  # as planning takes it
+            height = capture_height(workspace.captures) if captured else workspace.camera_height
             fitted, changes = fit_protocol(workspace.floor_plan, workspace.camera, protocol, height=height, captures=workspace.captures if captured else None)
             plan = planned(fitted)
             chose = ", ".join(f"protocol.{k} = {v:g} (configured {getattr(protocol, k):g})" for k, v in changes.items())

@@ -213,6 +213,11 @@ class Plan:
         return counts
 
 
+def capture_height(captures: Sequence[Pose]) -> float:
+    """The height a captured workspace's views are planned at: its captures' median (1.5 m without any)."""
+    return float(np.median([p.height for p in captures])) if len(captures) else 1.5
+
+
 def level_of(vo: float, bounds: tuple[float, float] = (60.0, 30.0)) -> int:
     """Difficulty level of a view overlap: 1 above ``bounds[0]``, 2 above ``bounds[1]``, else 3."""
     return 1 if vo > bounds[0] else 2 if vo > bounds[1] else 3
@@ -361,7 +366,7 @@ class Protocol:
         for k, key in enumerate(zip(cells.tolist(), orientations.tolist())):
             if key[0] >= 0:
                 by_class.setdefault(key, []).append(k)
-        height = float(np.median([p.height for p in captures])) if len(captures) else 1.5
+        height = capture_height(captures)
         with_captures = sorted({cell for cell, _ in by_class})
         chosen = self._choose_cells([with_captures[i] for i in rng.permutation(len(with_captures))], height, workspace, captures)
         reals, train_index = [], {}

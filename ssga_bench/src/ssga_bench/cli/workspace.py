@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import statistics
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any
 
@@ -97,7 +96,7 @@ def build_cli(
 def suggest_protocol(*, stage: ResolvedStage, protocol: ProtocolConfig) -> list[str]:
     """What ``ssga workspace build --suggest`` prints: the cells each cell size and viewpoint
     distance gives on the workspace (with the configured ones first), and the test radius."""
-    from ssga_bench.protocol import suggest, suggestion_kinds
+    from ssga_bench.protocol import capture_height, suggest, suggestion_kinds
     from ssga_bench.workspace import Workspace
 
     workspace = stage.create().open()
@@ -106,7 +105,7 @@ def suggest_protocol(*, stage: ResolvedStage, protocol: ProtocolConfig) -> list[
         workspace.floor_plan,
         workspace.camera,
         protocol,
-        height=workspace.camera_height if rendered else statistics.median(p.height for p in workspace.captures),
+        height=workspace.camera_height if rendered else capture_height(workspace.captures),
         captures=None if rendered else workspace.captures,
         limit=protocol.cells,
         check_test_radius=True,
