@@ -1,0 +1,174 @@
+"""How the protocol samples: the real training view and synthesis targets of each chosen
+cell, and test (and validation) views drawn around the cells until every class, and every
+level's quota, has its share (the definitions: :mod:`ssga_bench.protocol`)."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Callable, Sequence
+
+import numpy as np
+import shapely
+
+from ssga_core.errors import InputError
+from ssga_core.geometry import Pose
+from ssga_bench.protocol_geometry import ProtocolGeometry
+from ssga_bench.protocol_plan import Sample, Split, level_of
+from ssga_bench.visibility import view_overlap, visibility_polygon
+
+
+class ProtocolSampling(ProtocolGeometry):
+    """Training samples, test views and poses drawn over a class's region, on one floor plan
+    and camera (:class:`~ssga_bench.protocol.Protocol` chooses the cells they are drawn for)."""
+
+    def _training_samples(
+        self,
+        chosen: list[tuple[int, list[Pose]]],
+        reals: list[int],
+        real_poses: dict[int, Pose],
+        sources: dict[int, int] | None = None,
+    ) -> tuple[list[Sample], dict[int, Pose], list[int]]:
+        """The real training sample and the synthesis targets of each chosen cell.
+
+        Returns the samples, each class's training viewpoint, and each cell's real class.
+        """
+        c = self.config
+        samples: list[Sample] = []
+        training: dict[int, Pose] = {}
+        real_place: list[int] = []
+        for rank, ((cell, views), real) in enumerate(zip(chosen, reals)):
+            real_place.append(rank * c.orientations + real)
+            for o, canonical in enumerate(views):
+                place = rank * c.orientations + o
+                split: Split = "train" if o == real else "target"
+                pose = real_poses.get(place, canonical)
+                source = (sources or {}).get(place)
+                samples.append(Sample(f"{split}-{place:04d}", split, place, cell, o, pose, source=source))
+                training[place] = pose
+        return samples, training, real_place
+
+    def _test_sample(
+        self,
+        place: int,
+        cell: int,
+        orientation: int,
+        pose: Pose,
+        distances: np.ndarray,
+        polygons: dict[int, shapely.Polygon],
+        real_place: list[int],
+        number: int,
+        source: int | None = None,
+    ) -> Sample:
+        c = self.config
+        seen = visibility_polygon(pose, self.camera.hfov_deg, distances)
+        vo = view_overlap(seen, polygons[place])
+        vo_landmark = view_overlap(seen, polygons[real_place[place // c.orientations]])
+        level = level_of(vo if c.level_reference == "class" else vo_landmark, c.level_bounds)
+        return Sample(f"test-{place:04d}-{number:05d}", "test", place, cell, orientation, pose, vo, vo_landmark, level, source)
+
+    def _candidates(
+        self, cells: list[int], around_ranks: Callable[[], np.ndarray], height: float, rng: np.random.Generator, batch: int = 64
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """One batch of candidate views drawn as test views are: a position uniform in the free
+        floor within ``test_radius`` of a cell centroid (cells by rank from ``around_ranks()``,
+        one per candidate), a uniform heading. Returns positions, yaws, ray distances and the
+        grid cell each belongs to (``-1``: none), for the candidates on free floor."""
+        c = self.config
+        around = self.centroids[np.asarray(cells)[around_ranks()]]
+        r = c.test_radius * np.sqrt(rng.random(batch))
+        phi = rng.random(batch) * 2 * math.pi
+        xy = around + np.stack([r * np.cos(phi), r * np.sin(phi)], axis=-1)
+        yaw = rng.random(batch) * 2 * math.pi
+        free = self.is_free(xy)
+        xy, yaw = xy[free], yaw[free]
+        if not len(xy):
+            return xy, yaw, np.zeros((0, c.rays)), np.zeros(0, dtype=int)
+        distances = self.rays(xy, yaw)
+        return xy, yaw, distances, self.assign(xy, yaw, distances)
+
+    def class_poses(self, cells: Sequence[int], per_class: int, height: float, rng: np.random.Generator) -> dict[int, list[Pose]]:
+        """``per_class`` poses of every class of ``cells`` (grid cells in class order), drawn
+        over the region of poses that belong to the class, the way test views are drawn.
+
+        A class whose poses are too rare to find within ``max_candidates`` tries per pose
+        wanted gets fewer (possibly none).
+        """
+        c = self.config
+        cells = list(cells)
+        rank_of = {cell: rank for rank, cell in enumerate(cells)}
+        poses: dict[int, list[Pose]] = {place: [] for place in range(len(cells) * c.orientations)}
+        wanted = per_class * len(poses)
+        tried, batch = 0, 64
+        while sum(len(p) for p in poses.values()) < wanted and tried < wanted * c.max_candidates:
+            short = np.array([place // c.orientations for place, p in poses.items() if len(p) < per_class])
+            xy, yaw, _, cell = self._candidates(cells, lambda: rng.choice(short, size=batch), height, rng, batch)
+            tried += batch
+            orientation = self.orientation_of(yaw)
+            for k in range(len(xy)):
+                if cell[k] in rank_of:
+                    place = rank_of[cell[k]] * c.orientations + int(orientation[k])
+                    if len(poses[place]) < per_class:
+                        poses[place].append(Pose(float(xy[k, 0]), float(xy[k, 1]), float(yaw[k]), height))
+        return poses
+
+    def _sample_tests(
+        self,
+        cells: list[int],
+        training: dict[int, Pose],
+        real_place: list[int],
+        height: float,
+        rng: np.random.Generator,
+        progress: Callable[[int, int], None] | None,
+        split: Split = "test",
+        per_class: int | None = None,
+    ) -> list[Sample]:
+        """``per_class`` views of every class (default ``test_per_class``); test views then
+        continue (up to twice that per class) until every level has ``test_per_level``."""
+        c = self.config
+        per_class = c.test_per_class if per_class is None else per_class
+        quota = c.test_per_level if split == "test" else 0
+        rank_of = {cell: rank for rank, cell in enumerate(cells)}
+        wanted = per_class * len(cells) * c.orientations
+        counts = np.zeros(len(cells) * c.orientations, dtype=int)
+        levels = np.zeros(4, dtype=int)
+        polygons = {place: self.polygon(pose) for place, pose in training.items()}
+        tests: list[Sample] = []
+        tried, batch = 0, 64
+
+        def short_levels() -> bool:
+            return bool(quota) and bool((levels[1:] < quota).any())
+
+        while ((counts < per_class).any() or short_levels()) and tried < wanted * c.max_candidates:
+            # Draw around cells that still need views, so rare classes do not starve.
+            short = np.flatnonzero(counts < per_class) // c.orientations
+            if not len(short):
+                short = np.flatnonzero(counts < 2 * per_class) // c.orientations
+            if not len(short):
+                break
+            xy, yaw, distances, cell = self._candidates(cells, lambda: rng.choice(short, size=batch), height, rng, batch)
+            tried += batch
+            orientation = self.orientation_of(yaw)
+            for k in range(len(xy)):
+                if cell[k] not in rank_of:
+                    continue
+                place = rank_of[cell[k]] * c.orientations + int(orientation[k])
+                if counts[place] >= (2 * per_class if quota else per_class):
+                    continue
+                pose = Pose(float(xy[k, 0]), float(xy[k, 1]), float(yaw[k]), height)
+                sample = self._test_sample(place, int(cell[k]), int(orientation[k]), pose, distances[k], polygons, real_place, int(counts[place]))
+                if counts[place] >= per_class and levels[sample.level] >= quota:
+                    continue  # beyond the class's share, only a level still short of its quota takes a view
+                tests.append(dataclasses.replace(sample, id=sample.id.replace("test", split, 1), split=split) if split != "test" else sample)
+                counts[place] += 1
+                levels[sample.level] += 1
+            if progress is not None:
+                progress(len(tests), wanted)
+        missing = int((per_class - counts).clip(0).sum())
+        if missing:
+            raise InputError(
+                f"protocol: {missing} of {wanted} {split} views could not be placed after {tried} candidate poses; "
+                f"raise protocol.test_radius or protocol.max_candidates, or lower protocol.{split}_per_class "
+                "(`ssga workspace build --suggest` tries other test radii)"
+            )
+        return sorted(tests, key=lambda s: s.id)
