@@ -135,3 +135,104 @@ def test_the_command_line_reports_an_ssga_error_in_one_line(tmp_path, capsys):
     code = training_main("some.module", "Train it.\n\nMore.", run_training, Config(), ["--out", str(tmp_path), "--no-eval"], exports="net.pt", default_export=lambda out: out / "weights")
     assert code == 1 and calls == [(tmp_path, tmp_path / "weights", False)]
     assert capsys.readouterr().err.strip() == f"error: {tmp_path}: nothing to train on"
+
+
+# --------------------------------------------------------------------------- the whole command
+
+
+@dataclass(frozen=True)
+class CommandConfig(Config):
+    train_seeds: tuple[int, ...] = (7,)
+
+
+class Command(Run):
+    """The least-squares run as a whole training command: each hook records that it ran."""
+
+    module = "some.train"
+    what = "a least-squares test network"
+    export_name = "net"
+
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        self.called: list[str] = []
+
+    def training_data(self):
+        self.called.append("data")
+        return DATA
+
+    def initial(self, data):
+        self.called.append("initial")
+        return fresh_net()
+
+    def network(self):
+        return torch.nn.Linear(8, 1)
+
+    def optimizer(self, net):
+        return torch.optim.SGD(net.parameters(), lr=0.0)  # as train() below; the schedule sets the rate
+
+    def after_training(self, net, data):
+        self.called.append("after")
+        return {"after": 1}
+
+    def heldout_figures(self, init, net):
+        self.called.append("heldout")
+        assert not init.training and not net.training
+        return {"init": init.bias.item(), "trained": net.bias.item()}
+
+    def provenance_extra(self, net):
+        return {"train_seeds": [7]}
+
+
+def test_the_command_trains_from_the_initialisation_and_exports_it_with_its_provenance(tmp_path):
+    run = Command(CommandConfig(), tmp_path / "run")
+    path = run.command(tmp_path / "out", argv=["--out", "run"])
+    assert run.called == ["data", "initial", "after", "heldout"]
+    _, net, _ = train(tmp_path / "plain")  # the same loop from the same initialisation, by hand
+    checkpoint = torch.load(path, weights_only=True)
+    assert torch.equal(checkpoint["state_dict"]["weight"], net.weight), "training starts from the initialisation"
+    provenance = checkpoint["provenance"]
+    assert provenance["what"] == "a least-squares test network" and provenance["command"] == "python -m some.train --out run"
+    assert provenance["figures"]["after"] == 1 and provenance["figures"]["heldout"]["init"] == fresh_net().bias.item()
+    assert provenance["train_seeds"] == [7] and json.loads((tmp_path / "out" / "net.json").read_text())["sha256"]
+
+
+def test_without_heldout_figures_the_command_skips_them(tmp_path):
+    run = Command(CommandConfig(), tmp_path / "run")
+    path = run.command(tmp_path / "out", evaluate_heldout=False, argv=[])
+    assert "heldout" not in run.called and "heldout" not in torch.load(path, weights_only=True)["provenance"]["figures"]
+
+
+# --------------------------------------------------------------------------- the evaluation command
+
+
+def test_the_evaluation_command_scores_each_weights_file_on_views_made_once(tmp_path, capsys):
+    from ssga_bench.training import evaluation_main
+
+    made, scored = [], []
+
+    def held_out(args):
+        made.append(args.views)
+        return list(range(args.views))
+
+    def measure(weights, views, args):
+        scored.append(weights)
+        return {"views": len(views), "weights": weights}
+
+    argv = ["--weights", "a.pt", "--weights", "b.pt", "--views", "3", "--json", str(tmp_path / "f.json")]
+    code = evaluation_main("some.evaluate", "Score it.", argv, held_out=held_out, measure=measure, add_arguments=lambda p: p.add_argument("--views", type=int))
+    assert code == 0 and made == [3] and scored == ["a.pt", "b.pt"]
+    printed = json.loads(capsys.readouterr().out)
+    assert printed == {"a.pt": {"views": 3, "weights": "a.pt"}, "b.pt": {"views": 3, "weights": "b.pt"}}
+    assert json.loads((tmp_path / "f.json").read_text()) == printed
+    assert evaluation_main("some.evaluate", "Score it.", [], held_out=lambda a: [], measure=measure) == 0
+    assert scored[-1] is None, "no --weights: the packaged ones"
+
+
+def test_the_evaluation_command_reports_an_ssga_error_in_one_line(capsys):
+    from ssga_bench.training import evaluation_main
+
+    def measure(weights, views, args):
+        raise InputError(f"weights {weights!r}: no such file")
+
+    assert evaluation_main("some.evaluate", "Score it.", ["--weights", "x.pt"], held_out=lambda a: [], measure=measure) == 1
+    assert capsys.readouterr().err.strip().splitlines()[-1] == "error: weights 'x.pt': no such file"

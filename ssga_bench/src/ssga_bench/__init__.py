@@ -47,6 +47,10 @@ _EXPORTS = {
     "export_checkpoint": "ssga_bench.training",
     "cosine_lr": "ssga_bench.training",
     "poly_lr": "ssga_bench.training",
+    "evaluation_main": "ssga_bench.training",
+    # training views of homes, rendered once per home
+    "ArrayRecord": "ssga_bench.training_data",
+    "cached_homes": "ssga_bench.training_data",
     # how good a synthesis is, against the true render
     "QualityTally": "ssga_bench.synthesis_quality",
     "seen_mask": "ssga_bench.synthesis_quality",

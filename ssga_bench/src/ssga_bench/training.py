@@ -24,14 +24,22 @@ loop; a plugin subclasses it with four hooks::
 The config is a frozen dataclass with ``stages`` (``(size, steps, batch, ...)``
 tuples), ``lr`` (one per stage), ``checkpoint_every`` and ``seed``; :func:`config_json` is
 what a run folder and the exported weights record of it.
-:func:`training_provenance`, :func:`export_checkpoint` and :func:`training_main` give every
-plugin the same provenance record, exported files and command line.
+
+The whole command is :meth:`TrainingRun.command`: training data, initialisation,
+training, the steps after it, held-out figures, provenance and export, in that order.
+A plugin's ``Run`` fills in what is its own (:meth:`~TrainingRun.training_data`,
+:meth:`~TrainingRun.initial`, :meth:`~TrainingRun.network`, :meth:`~TrainingRun.payload`,
+and where it has them :meth:`~TrainingRun.after_training` and
+:meth:`~TrainingRun.heldout_figures`); :meth:`~TrainingRun.cached` renders its views of
+each home once (:mod:`ssga_bench.training_data`). :func:`training_main` is the command
+line every training module has.
 """
 
 from __future__ import annotations
 
 import argparse
 import datetime
+import json
 import hashlib
 import math
 import platform
@@ -124,6 +132,95 @@ class TrainingRun:
     def train_step(self, net: torch.nn.Module, optimizer: torch.optim.Optimizer, stage: int, data: Any, rng: np.random.Generator) -> Sequence[float]:
         """One optimiser step on a batch drawn with ``rng``; returns the :attr:`metrics`."""
         raise NotImplementedError
+
+    # ------------------------------------------------------------------ the command's own parts
+
+    module: ClassVar[str] = ""
+    """``python -m MODULE`` runs this training (recorded in the provenance)."""
+    what: ClassVar[str] = ""
+    """What the exported weights are, in words (the provenance's ``what``)."""
+    export_name: ClassVar[str] = ""
+    """The default :meth:`export` writes ``NAME.pt`` and ``NAME.json``."""
+
+    def training_data(self) -> Any:
+        """The training views (rendered once per home: :meth:`cached`); ``len()`` counts them."""
+        raise NotImplementedError
+
+    def initial(self, data: Any) -> torch.nn.Module:
+        """The seeded initialisation: training starts from it and the held-out figures compare against it."""
+        raise NotImplementedError
+
+    def network(self) -> torch.nn.Module:
+        """A new network of the layout trained; the initialisation is loaded into it before training."""
+        raise NotImplementedError
+
+    def optimizer(self, net: torch.nn.Module) -> torch.optim.Optimizer:
+        import torch
+
+        return torch.optim.Adam(net.parameters(), lr=self.config.lr[0])
+
+    def training_input(self, data: Any) -> Any:
+        """What :meth:`train` hands :meth:`begin_stage`: the views, and whatever the steps need besides."""
+        return data
+
+    def after_training(self, net: torch.nn.Module, data: Any) -> dict[str, Any]:
+        """Steps after the optimisation (a whitening, a calibration); returns the figures they add."""
+        return {}
+
+    def heldout_figures(self, init: torch.nn.Module, net: torch.nn.Module) -> dict[str, Any]:
+        """Figures of the initialisation and the result on held-out homes (``{"init": ..., "trained": ...}``)."""
+        return {}
+
+    def provenance_extra(self, net: torch.nn.Module) -> dict[str, Any]:
+        """The plugin's own provenance fields (training and held-out seeds, home settings, the network's options)."""
+        return {}
+
+    def describe(self, net: torch.nn.Module) -> str:
+        return self.what
+
+    def payload(self, net: torch.nn.Module) -> dict[str, Any]:
+        """What the exported file holds besides the provenance."""
+        return {"state_dict": net.state_dict()}
+
+    def export(self, net: torch.nn.Module, provenance: dict[str, Any], folder: Path) -> Path:
+        """Write the weights into ``folder``; returns what was written (the file, or a folder of files)."""
+        return export_checkpoint(folder, self.export_name, self.payload(net), provenance)
+
+    def cached(self, phase: str, views: Callable[[Path], Any]) -> Any:
+        """``views(folder)``, timed as ``phase``: a plugin's views of its homes, each home rendered
+        once into the run folder's ``views/`` (:func:`~ssga_bench.cached_homes`)."""
+        t = time.perf_counter()
+        data = views(self.out / "views")
+        self.timed(phase, time.perf_counter() - t)
+        return data
+
+    # ------------------------------------------------------------------ the command
+
+    def command(self, export_to: Path, *, evaluate_heldout: bool = True, argv: Sequence[str] | None = None) -> Path:
+        """The whole training command: data, initialisation, training, the steps after it,
+        held-out figures, provenance and export; returns what :meth:`export` wrote."""
+        started = datetime.datetime.now(datetime.timezone.utc)
+        self.invocation = command_line(self.module, argv)
+        """The command as typed (a calibration or other record written on the way names it)."""
+        data = self.training_data()
+        training_log(f"{len(data)} training {self.unit} of {len(self.config.train_seeds)} homes")
+        init = self.initial(data)
+        net = self.network()
+        net.load_state_dict(init.state_dict())
+        net, history = self.train(net, self.optimizer(net), self.training_input(data))
+        figures = self.figures(history)
+        figures.update(self.after_training(net, data))
+        if evaluate_heldout:
+            t = time.perf_counter()
+            init.eval()
+            figures["heldout"] = self.heldout_figures(init, net)
+            figures["heldout_seconds"] = round(time.perf_counter() - t, 1)
+            training_log(f"held-out figures: {json.dumps(figures['heldout'])}")
+        provenance = training_provenance(self.describe(net), self.module, argv, started, self.config, figures, **self.provenance_extra(net))
+        written = self.export(net, provenance, export_to)
+        size = sum(f.stat().st_size for f in written.iterdir() if f.suffix in {".pt", ".pth"}) if written.is_dir() else written.stat().st_size
+        training_log(f"exported {written} ({size / 1e6:.1f} MB); training took {figures['training_seconds'] / 60:.1f} min")
+        return written
 
     # ------------------------------------------------------------------ the loop
 
@@ -258,6 +355,54 @@ def training_main(
     torch.set_num_threads(args.threads)
     try:
         run_training(config, args.out, args.export or default_export(args.out), evaluate_heldout=not args.no_eval, argv=argv)
+    except SsgaError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 1
+    return 0
+
+
+def evaluation_main(
+    module: str,
+    doc: str,
+    argv: Sequence[str] | None,
+    *,
+    held_out: Callable[[argparse.Namespace], Any],
+    measure: Callable[[str | None, Any, argparse.Namespace], dict[str, Any]],
+    add_arguments: Callable[[argparse.ArgumentParser], None] | None = None,
+) -> int:
+    """The command line every plugin's ``evaluate`` module has: held-out figures of one or
+    more weights files, as JSON.
+
+    ``--weights`` (repeatable; default: the packaged weights, passed to ``measure`` as
+    None), ``--threads``, ``--json FILE``, and the plugin's own ``add_arguments``. The
+    held-out views (``held_out(args)``) are made once and every weights file is scored on
+    them (``measure(weights, views, args)``); an ssga error is one ``error:`` line and exit 1.
+    """
+    import torch
+
+    from ssga_bench.io import write_json
+
+    parser = argparse.ArgumentParser(prog=f"python -m {module}", description=doc.split("\n\n")[0])
+    parser.add_argument("--weights", action="append", default=None, help="weights to score (default: the packaged ones); repeatable")
+    parser.add_argument("--threads", type=int, default=1, help="torch threads (default 1)")
+    parser.add_argument("--json", type=Path, default=None, help="also write the figures to this file")
+    if add_arguments:
+        add_arguments(parser)
+    args = parser.parse_args(argv)
+    torch.set_num_threads(args.threads)
+    results: dict[str, Any] = {}
+    try:
+        t = time.perf_counter()
+        views = held_out(args)
+        # Progress on stderr: the figures on stdout stay pure JSON, for a pipe.
+        print(f"{len(views)} held-out views ready ({time.perf_counter() - t:.0f} s)", file=sys.stderr, flush=True)
+        for weights in args.weights or [None]:
+            t = time.perf_counter()
+            results[weights or "packaged"] = measure(weights, views, args)
+            print(f"{weights or 'packaged weights'}: scored in {time.perf_counter() - t:.0f} s", file=sys.stderr, flush=True)
+        print(json.dumps(results, indent=2))
+        if args.json:
+            write_json(args.json, results)
     except SsgaError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 1

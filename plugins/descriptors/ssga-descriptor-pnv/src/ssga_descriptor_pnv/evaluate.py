@@ -17,9 +17,7 @@ the WPCA layer (only meaningful once WPCA has been fitted).
 
 from __future__ import annotations
 
-import argparse
 import sys
-import time
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -106,22 +104,13 @@ def load_network(path: str) -> tuple[PatchNetVLAD, bool]:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m ssga_descriptor_pnv.evaluate", description=__doc__.split("\n\n")[0])
-    parser.add_argument("--weights", action="append", required=True, help="checkpoint to evaluate (repeat for several)")
-    parser.add_argument("--threads", type=int, default=1, help="torch threads (default 1)")
-    args = parser.parse_args(argv)
-    torch.set_num_threads(args.threads)
-    spec = HeldOut()
-    t = time.perf_counter()
-    data = render_heldout(spec, progress=lambda m: print(m, flush=True))
-    print(f"held-out homes {spec.seeds}: {len(data)} views in {time.perf_counter() - t:.0f} s", flush=True)
-    for path in args.weights:
-        net, fitted = load_network(path)
-        t = time.perf_counter()
-        result = evaluate(net, data, spec, wpca=fitted)
-        print(f"{path}: {result} ({time.perf_counter() - t:.0f} s)", flush=True)
-    return 0
+    from ssga_bench import evaluation_main
 
+    def measure(weights: str | None, data: Places, args) -> dict[str, dict[str, float]]:
+        net, fitted = load_network(weights or "pnv-light.pt")
+        return evaluate(net, data, HeldOut(), wpca=fitted)
+
+    return evaluation_main("ssga_descriptor_pnv.evaluate", __doc__, argv, held_out=lambda args: render_heldout(HeldOut(), progress=print), measure=measure)
 
 if __name__ == "__main__":
     sys.exit(main())

@@ -12,13 +12,15 @@ on seeds no other plugin uses (:mod:`ssga_workspace_procedural.training_homes`).
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
 
+from ssga_bench import ArrayRecord
+
 @dataclass
-class Places:
+class Places(ArrayRecord):
     """Views of places: ``rgb`` ``(N, S, S, 3)`` uint8, ``poses`` ``(N, 3)`` (x, y, yaw),
     ``home`` ``(N,)`` seeds, ``place`` ``(N,)`` place ids; a place's views are consecutive."""
 
@@ -26,16 +28,6 @@ class Places:
     poses: np.ndarray
     home: np.ndarray
     place: np.ndarray
-
-    def __len__(self) -> int:
-        return len(self.rgb)
-
-    @classmethod
-    def concat(cls, parts: Sequence[Places]) -> Places:
-        return cls(*(np.concatenate([getattr(p, f) for p in parts]) for f in ("rgb", "poses", "home", "place")))
-
-    def arrays(self) -> dict[str, np.ndarray]:
-        return {"rgb": self.rgb, "poses": self.poses, "home": self.home, "place": self.place}
 
 
 def render_places(

@@ -29,23 +29,23 @@ on from the last checkpoint in ``--out``):
 
 from __future__ import annotations
 
-import datetime
 import sys
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import torch
 import torch.nn.functional as F
 
 from ssga_core import InputError
-from ssga_bench import TrainingRun, atomic_write_bytes, checkpoint_bytes, export_checkpoint, load_checkpoint, training_main, training_provenance
+from ssga_bench import TrainingRun, atomic_write_bytes, cached_homes, checkpoint_bytes, load_checkpoint, training_main
 from ssga_bench import training_log as log
 from ssga_descriptor_pnv.evaluate import HeldOut, evaluate, render_heldout
 from ssga_descriptor_pnv.homes import Places, relations, render_places
-from ssga_workspace_procedural.training_homes import BENCH_HOME
+from ssga_workspace_procedural.training_homes import BENCH_HOME, RENDERER_VERSION
 from ssga_descriptor_pnv.layout import LIGHT_WIDTHS
 from ssga_descriptor_pnv.model import PatchNetVLAD, preprocess
 
@@ -91,28 +91,27 @@ class Run(TrainingRun):
 
     config: TrainConfig
 
+    module = MODULE
+    export_name = EXPORT_NAME
+    what = "light Patch-NetVLAD (VGG16 layout, block widths 16/32/64/128/128) trained on procedural homes"
+
     # ------------------------------------------------------------------ views
 
-    def views(self) -> Places:
-        parts = []
-        for i, seed in enumerate(self.config.train_seeds):
-            cache = self.out / f"views-{seed}.npz"
-            if cache.is_file():
-                with np.load(cache) as f:
-                    parts.append(Places(f["rgb"], f["poses"], f["home"], f["place"]))
-                continue
-            t = time.perf_counter()
-            c = self.config
-            part = render_places(seed, c.places_per_home, jitter_m=c.jitter_m, jitter_deg=c.jitter_deg, first_place=i * c.places_per_home)
-            tmp = cache.with_suffix(".tmp.npz")
-            np.savez(tmp, **part.arrays())
-            tmp.replace(cache)
-            self.timed("render", time.perf_counter() - t)
-            log(f"home {seed}: {len(part)} views rendered ({time.perf_counter() - t:.0f} s)")
-            parts.append(part)
-        return Places.concat(parts)
+    def training_data(self) -> Places:
+        c = self.config
+        # Place ids run on from one home to the next, so the homes' order is part of every home's views.
+        settings = {"homes": list(c.train_seeds), "places_per_home": c.places_per_home, "jitter": [c.jitter_m, c.jitter_deg], "renderer": RENDERER_VERSION}
+
+        def render(seed: int) -> Places:
+            first = c.train_seeds.index(seed) * c.places_per_home
+            return render_places(seed, c.places_per_home, jitter_m=c.jitter_m, jitter_deg=c.jitter_deg, first_place=first)
+
+        return self.cached("render", lambda folder: cached_homes(folder, "places", c.train_seeds, settings, render, Places, progress=log))
 
     # ------------------------------------------------------------------ init
+
+    def network(self) -> PatchNetVLAD:
+        return PatchNetVLAD(self.config.widths, self.config.clusters, self.config.num_pcs)
 
     def initial(self, data: Places) -> PatchNetVLAD:
         """The seeded network with k-means centroids (cached as ``init.pt``: the random-init baseline)."""
@@ -165,7 +164,21 @@ class Run(TrainingRun):
         idx = np.stack([[place_start[p], place_start[p] + 1] for p in places]).ravel()
         return _step(net, optimizer, images[idx], places_data, idx, c, rng)
 
-    # ------------------------------------------------------------------ WPCA
+    # ------------------------------------------------------------------ after training
+
+    def after_training(self, net: PatchNetVLAD, data: Places) -> dict[str, Any]:
+        return {"wpca": self.fit_wpca(net, data)}
+
+    def heldout_figures(self, init: PatchNetVLAD, net: PatchNetVLAD) -> dict[str, Any]:
+        """Recall@N of the initialisation (before WPCA: it has none) and the result on held-out homes."""
+        heldout = render_heldout(self.config.heldout)
+        return {"init": evaluate(init, heldout, self.config.heldout, wpca=False), "trained": evaluate(net, heldout, self.config.heldout)}
+
+    def provenance_extra(self, net: PatchNetVLAD) -> dict[str, Any]:
+        return {"train_seeds": list(self.config.train_seeds), "heldout_seeds": list(self.config.heldout.seeds), "home": dict(BENCH_HOME)}
+
+    def payload(self, net: PatchNetVLAD) -> dict[str, Any]:
+        return {"num_pcs": net.num_pcs, "state_dict": net.state_dict()}
 
     def fit_wpca(self, net: PatchNetVLAD, data: Places) -> dict[str, float]:
         c = self.config
@@ -265,32 +278,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 def run_training(config: TrainConfig, out: Path, export_to: Path, *, evaluate_heldout: bool = True, argv: Sequence[str] | None = None) -> Path:
     """Every step of the module docstring; returns the exported weights' path."""
-    run = Run(config, out)
-    started = datetime.datetime.now(datetime.timezone.utc)
-    data = run.views()
-    log(f"{len(data)} training views of {len(config.train_seeds)} homes")
-    init = run.initial(data)
-    net = PatchNetVLAD(config.widths, config.clusters, config.num_pcs)
-    net.load_state_dict(init.state_dict())
-    net, history = run.train(net, torch.optim.Adam(net.parameters(), lr=config.lr[0]), data)
-    wpca = run.fit_wpca(net, data)
-    figures = {**run.figures(history), "wpca": wpca}
-    if evaluate_heldout:
-        t = time.perf_counter()
-        heldout = render_heldout(config.heldout)
-        figures["heldout"] = {"init": evaluate(init, heldout, config.heldout, wpca=False), "trained": evaluate(net, heldout, config.heldout)}
-        figures["heldout_seconds"] = round(time.perf_counter() - t, 1)
-        log(f"held-out recall, initialisation: {figures['heldout']['init']}; trained: {figures['heldout']['trained']}")
-    provenance = training_provenance(
-        "light Patch-NetVLAD (VGG16 layout, block widths 16/32/64/128/128) trained on procedural homes",
-        MODULE, argv, started, config, figures,
-        train_seeds=list(config.train_seeds),
-        heldout_seeds=list(config.heldout.seeds),
-        home=dict(BENCH_HOME),
-    )
-    path = export_checkpoint(export_to, EXPORT_NAME, {"num_pcs": net.num_pcs, "state_dict": net.state_dict()}, provenance)
-    log(f"exported {path} ({path.stat().st_size / 1e6:.1f} MB); training took {figures['training_seconds'] / 60:.1f} min")
-    return path
+    return Run(config, out).command(export_to, evaluate_heldout=evaluate_heldout, argv=argv)
 
 
 if __name__ == "__main__":

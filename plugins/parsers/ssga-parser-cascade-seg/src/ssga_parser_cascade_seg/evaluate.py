@@ -11,7 +11,6 @@ prediction); pixel accuracy is the share of labelled pixels predicted right.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import time
 from collections.abc import Callable, Sequence
@@ -20,7 +19,6 @@ from typing import Any
 
 import numpy as np
 
-from ssga_core import SsgaError
 from ssga_parser_cascade_seg.homes import HELDOUT_SEEDS, Labelled, cached_labelled
 
 
@@ -55,39 +53,33 @@ def evaluate(classify: Callable[[np.ndarray], np.ndarray], data: Labelled, names
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m ssga_parser_cascade_seg.evaluate", description=__doc__.split("\n\n")[0])
-    parser.add_argument("--preset", default=None, help="one of the parser's presets (default: its defaults, the packaged light network)")
-    parser.add_argument("--weights", default=None, help="weights folder (default: the preset's)")
-    parser.add_argument("--image-sizes", default=None, help="comma-separated test scales, e.g. 176,216,256,296,336 (default: the preset's)")
-    parser.add_argument("--views", type=int, default=50, help="views per held-out home (default 50)")
-    parser.add_argument("--cache", type=Path, default=Path("runs/cascade-seg-views"), help="folder of the rendered views")
-    parser.add_argument("--threads", type=int, default=1, help="torch threads (default 1)")
-    args = parser.parse_args(argv)
-    import torch
-
+    from ssga_bench import evaluation_main
     from ssga_core import resolve_stage
     from ssga_core.cli import current_registry
 
-    torch.set_num_threads(args.threads)
-    try:
+    def arguments(parser: argparse.ArgumentParser) -> None:
+        parser.add_argument("--preset", default=None, help="one of the parser's presets (default: its defaults, the packaged light network)")
+        parser.add_argument("--image-sizes", default=None, help="comma-separated test scales, e.g. 176,216,256,296,336 (default: the preset's)")
+        parser.add_argument("--views", type=int, default=50, help="views per held-out home (default 50)")
+        parser.add_argument("--cache", type=Path, default=Path("runs/cascade-seg-views"), help="folder of the rendered views")
+
+    def measure(weights: str | None, data: Labelled, args: argparse.Namespace) -> dict[str, Any]:
         options: dict[str, Any] = {"name": "cascade-seg"}
         if args.preset:
             options["preset"] = args.preset
-        if args.weights:
-            options["weights"] = args.weights
+        if weights:
+            options["weights"] = weights
         if args.image_sizes:
             parts = args.image_sizes.split(",")
             # Anything but integers goes to the config as given, which then says what it expected.
             options["image_sizes"] = [int(p) for p in parts] if all(p.strip().isdigit() for p in parts) else args.image_sizes
         segmenter = resolve_stage("parser", options, current_registry(), source="options").create()
-        data = cached_labelled(args.cache, HELDOUT_SEEDS, args.views)
-        figures = evaluate(segmenter.classify, data, segmenter.class_names)
-    except SsgaError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 1
-    print(json.dumps(figures, indent=2))
-    return 0
+        return evaluate(segmenter.classify, data, segmenter.class_names)
 
+    return evaluation_main(
+        "ssga_parser_cascade_seg.evaluate", __doc__, argv,
+        held_out=lambda args: cached_labelled(args.cache, HELDOUT_SEEDS, args.views), measure=measure, add_arguments=arguments,
+    )
 
 if __name__ == "__main__":
     sys.exit(main())

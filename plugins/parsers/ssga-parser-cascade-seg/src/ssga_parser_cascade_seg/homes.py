@@ -18,35 +18,19 @@ from pathlib import Path
 
 import numpy as np
 
+from ssga_bench import ArrayRecord, cached_homes
+
 TRAIN_SEEDS: tuple[int, ...] = tuple(range(4000, 4012))
 HELDOUT_SEEDS: tuple[int, ...] = (4100, 4101, 4102, 4103)
 
 
 @dataclass
-class Labelled:
+class Labelled(ArrayRecord):
     """``rgb`` ``(N, H, W, 3)`` uint8, ``labels`` ``(N, H, W)`` int8 class indices (``-1`` unknown), ``home`` ``(N,)`` seeds."""
 
     rgb: np.ndarray
     labels: np.ndarray
     home: np.ndarray
-
-    def __len__(self) -> int:
-        return len(self.rgb)
-
-    @classmethod
-    def concat(cls, parts: Sequence[Labelled]) -> Labelled:
-        return cls(*(np.concatenate([getattr(p, f) for p in parts]) for f in ("rgb", "labels", "home")))
-
-    def save(self, path: Path) -> None:
-        """As ``.npz``, written whole or not at all."""
-        tmp = path.with_name(path.stem + ".tmp.npz")
-        np.savez(tmp, rgb=self.rgb, labels=self.labels, home=self.home)
-        tmp.replace(path)
-
-    @classmethod
-    def load(cls, path: Path) -> Labelled:
-        with np.load(path, allow_pickle=False) as f:
-            return cls(f["rgb"], f["labels"], f["home"])
 
 
 def class_labels(semantic: np.ndarray) -> np.ndarray:
@@ -67,14 +51,8 @@ def render_labelled(seed: int, count: int, *, progress: Callable[[str], None] | 
 
 
 def cached_labelled(folder: Path, seeds: Sequence[int], per_home: int, progress: Callable[[str], None] | None = None) -> Labelled:
-    """:func:`render_labelled` of every seed, each cached in ``folder`` as ``labelled-<seed>-<per_home>.npz``."""
-    folder.mkdir(parents=True, exist_ok=True)
-    parts = []
-    for seed in seeds:
-        path = folder / f"labelled-{seed}-{per_home}.npz"
-        if not path.is_file():
-            render_labelled(seed, per_home, progress=progress).save(path)
-            if progress:
-                progress(f"home {seed}: {per_home} labelled views rendered into {path}")
-        parts.append(Labelled.load(path))
-    return Labelled.concat(parts)
+    """:func:`render_labelled` of every seed, each home rendered once into ``folder``."""
+    from ssga_workspace_procedural.training_homes import RENDERER_VERSION
+
+    settings = {"per_home": per_home, "renderer": RENDERER_VERSION}
+    return cached_homes(folder, "labelled", seeds, settings, lambda seed: render_labelled(seed, per_home, progress=progress), Labelled, progress=progress)

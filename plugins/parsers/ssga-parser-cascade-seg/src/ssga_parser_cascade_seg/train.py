@@ -30,10 +30,8 @@ from the last checkpoint in ``--out``):
 
 from __future__ import annotations
 
-import datetime
 import hashlib
 import sys
-import time
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -45,7 +43,7 @@ import torch
 import torch.nn.functional as F
 
 from ssga_core import InputError
-from ssga_bench import TrainingRun, atomic_write_bytes, checkpoint_bytes, poly_lr, training_main, training_provenance, write_json
+from ssga_bench import TrainingRun, atomic_write_bytes, checkpoint_bytes, poly_lr, training_main, write_json
 from ssga_bench import training_log as log
 from ssga_parser_cascade_seg.classes import PROCEDURAL
 from ssga_parser_cascade_seg.evaluate import evaluate
@@ -87,18 +85,35 @@ class Run(TrainingRun):
     """One training run in ``out``: its view caches, checkpoints and timings."""
 
     config: TrainConfig
-
-    def views(self, seeds: Sequence[int], per_home: int, phase: str) -> Labelled:
-        t = time.perf_counter()
-        views = cached_labelled(self.out / "views", seeds, per_home, progress=log)
-        self.timed(phase, time.perf_counter() - t)
-        return views
-
+    module = MODULE
+    what = (
+        "light CSAIL scene-parsing network (deep-stem ResNet18-dilated at widths stem 16/16/32, stages 16/32/64/128, "
+        "PPM-deepsup at 64; output stride 8) trained from scratch on ground-truth semantic labels of procedural homes"
+    )
     metrics = ("loss", "pixel_accuracy")
     rng_stream = 3
 
-    def initial(self) -> SceneParser:
+    def views(self, seeds: Sequence[int], per_home: int, phase: str) -> Labelled:
+        return self.cached(phase, lambda folder: cached_labelled(folder, seeds, per_home, progress=log))
+
+    def training_data(self) -> Labelled:
+        _check_vocabulary()
+        return self.views(self.config.train_seeds, self.config.views_per_home, "render")
+
+    def initial(self, data: Labelled) -> SceneParser:
         return init_weights(SceneParser(LIGHT, len(PROCEDURAL)), self.config.seed)
+
+    def network(self) -> SceneParser:
+        return SceneParser(LIGHT, len(PROCEDURAL))
+
+    def optimizer(self, net: SceneParser) -> torch.optim.Optimizer:
+        return torch.optim.AdamW(net.parameters(), lr=self.config.lr[0], weight_decay=self.config.weight_decay)
+
+    def training_input(self, data: Labelled) -> tuple[Labelled, torch.Tensor]:
+        """The views and the class weights of the cross-entropy (from the views' pixel counts)."""
+        self.pixels = class_pixels(data.labels, len(PROCEDURAL))
+        self.weight = class_weights(self.pixels, self.config.class_balance)
+        return data, self.weight
 
     def learning_rate(self, stage: int, step: int, steps: int) -> float:
         return poly_lr(self.config.lr[stage], step, steps)
@@ -109,6 +124,39 @@ class Run(TrainingRun):
         size, _, batch = c.stages[stage]
         x, y = _batch(views, rng, batch, size, c.scale_range if stage == 0 else (1.0, 1.0), c.jitter)
         return _step(net, optimizer, x, y, c.deep_sup_scale, weight)
+
+    def after_training(self, net: SceneParser, data: Labelled) -> dict[str, Any]:
+        return {
+            "train_pixels": {name: int(n) for name, n in zip(PROCEDURAL, self.pixels, strict=True)},
+            "class_weights": {name: round(float(w), 3) for name, w in zip(PROCEDURAL, self.weight, strict=True)},
+        }
+
+    def heldout_figures(self, init: SceneParser, net: SceneParser) -> dict[str, Any]:
+        """mIoU and pixel accuracy of the initialisation (single-scale) and the result (single- and multi-scale)."""
+        held = self.views(self.config.heldout_seeds, self.config.heldout_views, "render held-out")
+        figures = {}
+        for name, scales_name, model, scales in (
+            ("init", "single-scale", init, (256,)),
+            ("trained", "single-scale", net, (256,)),
+            ("trained", "multi-scale", net, LIGHT_SCALES),
+        ):
+            figures[f"{name} {scales_name}"] = evaluate(lambda rgb, m=model, s=scales: predict(m, rgb, s).argmax(0).numpy(), held, PROCEDURAL)
+        return figures
+
+    def provenance_extra(self, net: SceneParser) -> dict[str, Any]:
+        c = self.config
+        return {"network": "light", "classes": list(PROCEDURAL), "train_seeds": list(c.train_seeds), "heldout_seeds": list(c.heldout_seeds)}
+
+    def export(self, net: SceneParser, provenance: dict[str, Any], folder: Path) -> Path:
+        """The two release files (with ``provenance``) and ``provenance.json`` into ``folder``; returns ``folder``."""
+        folder.mkdir(parents=True, exist_ok=True)
+        files = {}
+        for name, part in ((FILES["encoder"], net.encoder), (FILES["decoder"], net.decoder)):
+            data = checkpoint_bytes({"network": "light", "classes": "procedural", "state_dict": part.state_dict(), "provenance": provenance})
+            atomic_write_bytes(folder / name, data)
+            files[name] = {"bytes": len(data), "sha256": hashlib.sha256(data).hexdigest()}
+        write_json(folder / "provenance.json", {**provenance, "files": files})
+        return folder
 
 
 def class_pixels(labels: np.ndarray, num_class: int) -> np.ndarray:
@@ -169,57 +217,9 @@ def _batch(data: Labelled, rng: np.random.Generator, batch: int, size: int, scal
     return torch.from_numpy(np.ascontiguousarray(images.transpose(0, 3, 1, 2), dtype=np.float32)), torch.from_numpy(labels)
 
 
-def export(net: SceneParser, provenance: dict[str, Any], folder: Path) -> Path:
-    """The two release files (with ``provenance``) and ``provenance.json`` into ``folder``; returns ``folder``."""
-    folder.mkdir(parents=True, exist_ok=True)
-    files = {}
-    for name, part in ((FILES["encoder"], net.encoder), (FILES["decoder"], net.decoder)):
-        data = checkpoint_bytes({"network": "light", "classes": "procedural", "state_dict": part.state_dict(), "provenance": provenance})
-        atomic_write_bytes(folder / name, data)
-        files[name] = {"bytes": len(data), "sha256": hashlib.sha256(data).hexdigest()}
-    write_json(folder / "provenance.json", {**provenance, "files": files})
-    return folder
-
-
 def run_training(config: TrainConfig, out: Path, export_to: Path, *, evaluate_heldout: bool = True, argv: Sequence[str] | None = None) -> Path:
     """Every step of the module docstring; returns the export folder."""
-    _check_vocabulary()
-    run = Run(config, out)
-    started = datetime.datetime.now(datetime.timezone.utc)
-    data = run.views(config.train_seeds, config.views_per_home, "render")
-    log(f"{len(data)} training views of {len(config.train_seeds)} homes")
-    init = run.initial()
-    net = SceneParser(LIGHT, len(PROCEDURAL))
-    net.load_state_dict(init.state_dict())
-    pixels = class_pixels(data.labels, len(PROCEDURAL))
-    weight = class_weights(pixels, config.class_balance)
-    optimizer = torch.optim.AdamW(net.parameters(), lr=config.lr[0], weight_decay=config.weight_decay)
-    net, history = run.train(net, optimizer, (data, weight))  # train_step gets the views and the class weights
-    figures = run.figures(history)
-    figures["train_pixels"] = {name: int(n) for name, n in zip(PROCEDURAL, pixels, strict=True)}
-    figures["class_weights"] = {name: round(float(w), 3) for name, w in zip(PROCEDURAL, weight, strict=True)}
-    if evaluate_heldout:
-        held = run.views(config.heldout_seeds, config.heldout_views, "render held-out")
-        figures["heldout"] = {}
-        for name, model in (("init", init.eval()), ("trained", net)):
-            for scales_name, scales in (("single-scale", (256,)), ("multi-scale", LIGHT_SCALES)):
-                if name == "init" and scales_name == "multi-scale":
-                    continue
-                result = evaluate(lambda rgb, m=model, s=scales: predict(m, rgb, s).argmax(0).numpy(), held, PROCEDURAL)
-                figures["heldout"][f"{name} {scales_name}"] = result
-                log(f"held-out {name} {scales_name}: mIoU {result['mean_iou']}, pixel accuracy {result['pixel_accuracy']} ({result['views']} views)")
-    provenance = training_provenance(
-        "light CSAIL scene-parsing network (deep-stem ResNet18-dilated at widths stem 16/16/32, stages 16/32/64/128, "
-        "PPM-deepsup at 64; output stride 8) trained from scratch on ground-truth semantic labels of procedural homes",
-        MODULE, argv, started, config, figures,
-        network="light",
-        classes=list(PROCEDURAL),
-        train_seeds=list(config.train_seeds),
-        heldout_seeds=list(config.heldout_seeds),
-    )
-    folder = export(net, provenance, export_to)
-    log(f"exported {folder} ({sum((folder / f).stat().st_size for f in FILES.values()) / 1e6:.1f} MB); training took {figures['training_seconds'] / 60:.1f} min")
-    return folder
+    return Run(config, out).command(export_to, evaluate_heldout=evaluate_heldout, argv=argv)
 
 
 def _check_vocabulary() -> None:

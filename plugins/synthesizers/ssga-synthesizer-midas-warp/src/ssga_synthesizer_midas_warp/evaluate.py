@@ -22,7 +22,6 @@ B = 193.001 mm, doffs = 31.086 px (calib.txt / 4); missing disparity (+inf) is e
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from collections.abc import Sequence
 from pathlib import Path
@@ -100,29 +99,24 @@ def evaluate_network(net: Any, calibration: Calibration | None, heldout_rgb: np.
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Figures of the packaged (or a given) network on the held-out homes and Middlebury, as JSON."""
-    import torch
-
+    """Figures of the packaged (or given) networks on the held-out homes and Middlebury, as JSON."""
+    from ssga_bench import evaluation_main
     from ssga_synthesizer_midas_warp.homes import HELDOUT_SEEDS, cached_views
     from ssga_synthesizer_midas_warp.plugin import MidasWarp, MidasWarpConfig
 
-    parser = argparse.ArgumentParser(prog="python -m ssga_synthesizer_midas_warp.evaluate", description=__doc__.split("\n\n")[0])
-    parser.add_argument("--weights", default=None, help="weights file (default: the packaged light network)")
-    parser.add_argument("--network", default=None, choices=["light", "v21-small"], help="default: the weights file's (its keys and shapes)")
-    parser.add_argument("--views", type=int, default=50, help="views per held-out home (default 50)")
-    parser.add_argument("--cache", type=Path, default=Path("runs/midas-eval"), help="where rendered held-out views are cached")
-    parser.add_argument("--threads", type=int, default=1)
-    args = parser.parse_args(argv)
-    torch.set_num_threads(args.threads)
-    fields: dict[str, Any] = {"network": args.network, "device": "cpu"}
-    if args.weights:
-        fields["weights"] = args.weights
-    synthesizer = MidasWarp(MidasWarpConfig(**fields))
-    views = cached_views(args.cache, HELDOUT_SEEDS, args.views)
-    figures = evaluate_network(synthesizer.net, synthesizer.calibration, views.rgb, views.depth)
-    print(json.dumps(figures, indent=2))
-    return 0
+    def arguments(parser: argparse.ArgumentParser) -> None:
+        parser.add_argument("--network", default=None, choices=["light", "v21-small"], help="default: the weights file's (its keys and shapes)")
+        parser.add_argument("--views", type=int, default=50, help="views per held-out home (default 50)")
+        parser.add_argument("--cache", type=Path, default=Path("runs/midas-eval"), help="where rendered held-out views are cached")
 
+    def measure(weights: str | None, views: Any, args: argparse.Namespace) -> dict[str, Any]:
+        synthesizer = MidasWarp(MidasWarpConfig(network=args.network, device="cpu", **({"weights": weights} if weights else {})))
+        return evaluate_network(synthesizer.net, synthesizer.calibration, views.rgb, views.depth)
+
+    return evaluation_main(
+        "ssga_synthesizer_midas_warp.evaluate", __doc__, argv,
+        held_out=lambda args: cached_views(args.cache, HELDOUT_SEEDS, args.views), measure=measure, add_arguments=arguments,
+    )
 
 if __name__ == "__main__":
     sys.exit(main())

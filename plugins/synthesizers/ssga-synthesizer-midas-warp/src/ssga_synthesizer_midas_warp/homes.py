@@ -16,37 +16,24 @@ from pathlib import Path
 
 import numpy as np
 
+from ssga_bench import ArrayRecord, cached_homes
+
 TRAIN_SEEDS: tuple[int, ...] = tuple(range(2000, 2012))
 CALIBRATION_SEEDS: tuple[int, ...] = (2100, 2101, 2102, 2103)
 HELDOUT_SEEDS: tuple[int, ...] = (2200, 2201, 2202, 2203)
 
 
 @dataclass
-class Views:
+class Views(ArrayRecord):
     """``rgb`` ``(N, H, W, 3)`` uint8, ``depth`` ``(N, H, W)`` float32 planar metres, ``poses`` ``(N, 3)`` (x, y, yaw), ``home`` ``(N,)`` seeds."""
+
+    stored = {"depth": np.float16}
+    loaded = {"depth": np.float32}
 
     rgb: np.ndarray
     depth: np.ndarray
     poses: np.ndarray
     home: np.ndarray
-
-    def __len__(self) -> int:
-        return len(self.rgb)
-
-    @classmethod
-    def concat(cls, parts: Sequence[Views]) -> Views:
-        return cls(*(np.concatenate([getattr(p, f) for p in parts]) for f in ("rgb", "depth", "poses", "home")))
-
-    def save(self, path: Path) -> None:
-        """As ``.npz`` (depth as float16), written whole or not at all."""
-        tmp = path.with_name(path.stem + ".tmp.npz")
-        np.savez(tmp, rgb=self.rgb, depth=self.depth.astype(np.float16), poses=self.poses, home=self.home)
-        tmp.replace(path)
-
-    @classmethod
-    def load(cls, path: Path) -> Views:
-        with np.load(path, allow_pickle=False) as f:
-            return cls(f["rgb"], f["depth"].astype(np.float32), f["poses"], f["home"])
 
 
 def render_views(seed: int, count: int, *, progress: Callable[[str], None] | None = None) -> Views:
@@ -63,14 +50,8 @@ def render_views(seed: int, count: int, *, progress: Callable[[str], None] | Non
 
 
 def cached_views(folder: Path, seeds: Sequence[int], per_home: int, progress: Callable[[str], None] | None = None) -> Views:
-    """:func:`render_views` of every seed, each cached in ``folder`` as ``views-<seed>-<per_home>.npz``."""
-    folder.mkdir(parents=True, exist_ok=True)
-    parts = []
-    for seed in seeds:
-        path = folder / f"views-{seed}-{per_home}.npz"
-        if not path.is_file():
-            render_views(seed, per_home, progress=progress).save(path)
-            if progress:
-                progress(f"home {seed}: {per_home} views rendered into {path}")
-        parts.append(Views.load(path))
-    return Views.concat(parts)
+    """:func:`render_views` of every seed, each home rendered once into ``folder``."""
+    from ssga_workspace_procedural.training_homes import RENDERER_VERSION
+
+    settings = {"per_home": per_home, "renderer": RENDERER_VERSION}
+    return cached_homes(folder, "views", seeds, settings, lambda seed: render_views(seed, per_home, progress=progress), Views, progress=progress)

@@ -32,20 +32,19 @@ from the last checkpoint in ``--out``):
 from __future__ import annotations
 
 import dataclasses
-import datetime
-import json
 import sys
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import cv2
 import numpy as np
 import torch
 import torch.nn.functional as F
 
-from ssga_bench import TrainingRun, atomic_write_bytes, checkpoint_bytes, command_line, cosine_lr, export_checkpoint, training_main, training_provenance
+from ssga_bench import TrainingRun, atomic_write_bytes, checkpoint_bytes, cosine_lr, training_main
 from ssga_bench import training_log as log
 from ssga_synthesizer_midas_warp.calibrate import calibrate
 from ssga_synthesizer_midas_warp.calibration import calibration_path, sha256_file
@@ -133,20 +132,29 @@ class Run(TrainingRun):
     """One training run in ``out``: its caches, checkpoints and timings."""
 
     config: TrainConfig
+    module = MODULE
+    export_name = EXPORT_NAME
+    what = (
+        "light MiDaS-small (MidasNet_small layout: EfficientNet-Lite stem 16, stage widths 8/16/24/48/64/96/128, "
+        "features 16) trained from scratch on procedural homes with MiDaS's scale-and-shift-invariant loss"
+    )
     metrics = ("loss", "positive_output")
 
     def views(self, seeds: Sequence[int], per_home: int, phase: str) -> Views:
-        t = time.perf_counter()
-        views = cached_views(self.out / "views", seeds, per_home, progress=log)
-        self.timed(phase, time.perf_counter() - t)
-        return views
+        return self.cached(phase, lambda folder: cached_views(folder, seeds, per_home, progress=log))
 
-    def initial(self) -> MidasNet:
+    def training_data(self) -> Views:
+        return self.views(self.config.train_seeds, self.config.views_per_home, "render")
+
+    def initial(self, data: Views) -> MidasNet:
         net = init_weights(MidasNet(LIGHT), self.config.seed)
         path = self.out / "init.pt"
         if not path.is_file():
             atomic_write_bytes(path, checkpoint_bytes({"state_dict": net.state_dict()}))
         return net
+
+    def network(self) -> MidasNet:
+        return MidasNet(LIGHT)
 
     def begin_stage(self, stage: int, data: Views) -> tuple[np.ndarray, np.ndarray]:
         inverse = np.where(data.depth > 0, 1.0 / np.maximum(data.depth, 1e-6), 0.0).astype(np.float32)
@@ -168,6 +176,43 @@ class Run(TrainingRun):
         torch.nn.utils.clip_grad_norm_(net.parameters(), c.grad_clip)
         optimizer.step()
         return loss.item(), (pred > 0).float().mean().item()
+
+    # ------------------------------------------------------------------ after training
+
+    def after_training(self, net: MidasNet, data: Views) -> dict[str, Any]:
+        """Calibration on homes of their own (:mod:`.calibrate`)."""
+        c = self.config
+        t = time.perf_counter()
+        self.calibration_views = self.views(c.calibration_seeds, c.calibration_views, "render calibration")
+        cal = self.calibration_views
+        self.calibration = calibrate(net, "light", f"{EXPORT_NAME}.pt", "", cal.rgb, cal.depth, seeds=c.calibration_seeds, command=self.invocation, seed=c.seed)
+        log(f"calibration: 1 / z = {self.calibration.scale:.5g} * pred + {self.calibration.shift:.5g} ({self.calibration.provenance['fit']}; {time.perf_counter() - t:.0f} s)")
+        return {"calibration": {"scale": self.calibration.scale, "shift": self.calibration.shift, **self.calibration.provenance["fit"]}}
+
+    def heldout_figures(self, init: MidasNet, net: MidasNet) -> dict[str, Any]:
+        """Depth errors of the seeded initialisation (calibrated as the result is) and the result on the held-out homes."""
+        c, cal = self.config, self.calibration_views
+        held = self.views(c.heldout_seeds, c.heldout_views, "render held-out")
+        init_cal = calibrate(init, "light", "init.pt", "", cal.rgb, cal.depth, seeds=c.calibration_seeds, seed=c.seed)
+        return {"init": evaluate_network(init, init_cal, held.rgb, held.depth), "trained": evaluate_network(net, self.calibration, held.rgb, held.depth)}
+
+    def provenance_extra(self, net: MidasNet) -> dict[str, Any]:
+        c = self.config
+        return {
+            "train_seeds": list(c.train_seeds),
+            "calibration_seeds": list(c.calibration_seeds),
+            "heldout_seeds": list(c.heldout_seeds),
+            "homes": {"even seeds": dict(bench_and_demo_sized(0)), "odd seeds": dict(bench_and_demo_sized(1))},
+        }
+
+    def payload(self, net: MidasNet) -> dict[str, Any]:
+        return {"network": "light", "state_dict": net.state_dict()}
+
+    def export(self, net: MidasNet, provenance: dict[str, Any], folder: Path) -> Path:
+        """The weights, and beside them their calibration, which names the file's SHA-256."""
+        path = super().export(net, provenance, folder)
+        dataclasses.replace(self.calibration, weights_sha256=sha256_file(path)).write(calibration_path(path))
+        return path
 
 
 def _resized(rgb: np.ndarray, inverse: np.ndarray, size: int) -> tuple[np.ndarray, np.ndarray]:
@@ -198,45 +243,7 @@ def _batch(rgb: np.ndarray, inverse: np.ndarray, rng: np.random.Generator, jitte
 
 def run_training(config: TrainConfig, out: Path, export_to: Path, *, evaluate_heldout: bool = True, argv: Sequence[str] | None = None) -> Path:
     """Every step of the module docstring; returns the exported weights' path."""
-    run = Run(config, out)
-    started = datetime.datetime.now(datetime.timezone.utc)
-    command = command_line(MODULE, argv)
-    data = run.views(config.train_seeds, config.views_per_home, "render")
-    log(f"{len(data)} training views of {len(config.train_seeds)} homes")
-    init = run.initial()
-    net = MidasNet(LIGHT)
-    net.load_state_dict(init.state_dict())
-    net, history = run.train(net, torch.optim.Adam(net.parameters(), lr=config.lr[0]), data)
-    figures = run.figures(history)
-    provenance = training_provenance(
-        "light MiDaS-small (MidasNet_small layout: EfficientNet-Lite stem 16, stage widths 8/16/24/48/64/96/128, "
-        "features 16) trained from scratch on procedural homes with MiDaS's scale-and-shift-invariant loss",
-        MODULE, argv, started, config, figures,
-        train_seeds=list(config.train_seeds),
-        calibration_seeds=list(config.calibration_seeds),
-        heldout_seeds=list(config.heldout_seeds),
-        homes={"even seeds": dict(bench_and_demo_sized(0)), "odd seeds": dict(bench_and_demo_sized(1))},
-    )
-    # Calibration on homes of their own, then held-out figures (of the seeded initialisation too).
-    t = time.perf_counter()
-    cal_views = cached_views(out / "views", config.calibration_seeds, config.calibration_views, progress=log)
-    calibration = calibrate(net, "light", f"{EXPORT_NAME}.pt", "", cal_views.rgb, cal_views.depth, seeds=config.calibration_seeds, command=command, seed=config.seed)
-    log(f"calibration: 1 / z = {calibration.scale:.5g} * pred + {calibration.shift:.5g} ({calibration.provenance['fit']}; {time.perf_counter() - t:.0f} s)")
-    figures["calibration"] = {"scale": calibration.scale, "shift": calibration.shift, **calibration.provenance["fit"]}
-    if evaluate_heldout:
-        t = time.perf_counter()
-        held = cached_views(out / "views", config.heldout_seeds, config.heldout_views, progress=log)
-        init_cal = calibrate(init, "light", "init.pt", "", cal_views.rgb, cal_views.depth, seeds=config.calibration_seeds, seed=config.seed)
-        figures["heldout"] = {
-            "init": evaluate_network(init.eval(), init_cal, held.rgb, held.depth),
-            "trained": evaluate_network(net, calibration, held.rgb, held.depth),
-        }
-        figures["heldout_seconds"] = round(time.perf_counter() - t, 1)
-        log(f"held-out figures: {json.dumps(figures['heldout']['trained'])}")
-    path = export_checkpoint(export_to, EXPORT_NAME, {"network": "light", "state_dict": net.state_dict()}, provenance)
-    dataclasses.replace(calibration, weights_sha256=sha256_file(path)).write(calibration_path(path))
-    log(f"exported {path} ({path.stat().st_size / 1e6:.1f} MB); training took {figures['training_seconds'] / 60:.1f} min")
-    return path
+    return Run(config, out).command(export_to, evaluate_heldout=evaluate_heldout, argv=argv)
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -33,12 +33,10 @@ and the share within 10%).
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -170,30 +168,22 @@ def table(rows: dict[str, dict[str, float]]) -> str:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    import torch
-
+    from ssga_bench import evaluation_main
     from ssga_synthesizer_synsin.plugin import SynSinConfig, SynSinSynthesizer
 
-    parser = argparse.ArgumentParser(prog="python -m ssga_synthesizer_synsin.evaluate", description=__doc__.split("\n\n")[0])
-    parser.add_argument(
-        "--weights", action="append", default=None, help="checkpoint(s) to score (default: the packaged weights); repeatable"
-    )
-    parser.add_argument("--pairs-per-home", type=int, default=HeldOut.pairs_per_home)
-    parser.add_argument("--threads", type=int, default=1)
-    parser.add_argument("--json", type=Path, default=None)
-    args = parser.parse_args(argv)
-    torch.set_num_threads(args.threads)
-    pairs = render_heldout(HeldOut(pairs_per_home=args.pairs_per_home))
-    results = {}
-    for i, weights in enumerate(args.weights or ["synsin-light.pt"]):
-        s = SynSinSynthesizer(SynSinConfig(weights=weights, device="cpu"))
-        results[weights] = evaluate(s, pairs, references=i == 0)
-        print(f"{weights}: {len(pairs)} held-out pairs; depth {results[weights]['depth']}")
-        print(table(results[weights]["scores"]))
-    if args.json:
-        args.json.write_text(json.dumps(results, indent=2))
-    return 0
+    def arguments(parser: argparse.ArgumentParser) -> None:
+        parser.add_argument("--pairs-per-home", type=int, default=HeldOut.pairs_per_home)
 
+    def measure(weights: str | None, pairs: Pairs, args: argparse.Namespace) -> dict[str, Any]:
+        first = weights == (args.weights or [None])[0]  # the reference renderers are scored once, beside the first
+        figures = evaluate(SynSinSynthesizer(SynSinConfig(weights=weights or "synsin-light.pt", device="cpu")), pairs, references=first)
+        print(table(figures["scores"]))
+        return figures
+
+    return evaluation_main(
+        "ssga_synthesizer_synsin.evaluate", __doc__, argv,
+        held_out=lambda args: render_heldout(HeldOut(pairs_per_home=args.pairs_per_home)), measure=measure, add_arguments=arguments,
+    )
 
 if __name__ == "__main__":
     sys.exit(main())

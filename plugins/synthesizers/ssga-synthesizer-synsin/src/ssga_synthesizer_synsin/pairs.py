@@ -16,17 +16,19 @@ uses: this package trains on 3000-3005 and holds out 3100-3101.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
+
+from ssga_bench import ArrayRecord
 
 TRAIN_SEEDS = tuple(range(3000, 3006))
 HELDOUT_SEEDS = (3100, 3101)
 
 
 @dataclass
-class Pairs:
+class Pairs(ArrayRecord):
     """``N`` pairs: ``rgb`` ``(N, 2, H, W, 3)`` uint8, ``depth`` ``(N, 2, H, W)`` float16 (metres),
     ``poses`` ``(N, 2, 3)`` (x, y, yaw), ``home`` ``(N,)`` seeds; index 0 of each pair is the source."""
 
@@ -35,23 +37,6 @@ class Pairs:
     poses: np.ndarray
     home: np.ndarray
     height: float = 1.5
-
-    def __len__(self) -> int:
-        return len(self.rgb)
-
-    @classmethod
-    def concat(cls, parts: Sequence[Pairs]) -> Pairs:
-        return cls(
-            *(np.concatenate([getattr(p, f) for p in parts]) for f in ("rgb", "depth", "poses", "home")), height=parts[0].height
-        )
-
-    def arrays(self) -> dict[str, np.ndarray]:
-        return {"rgb": self.rgb, "depth": self.depth, "poses": self.poses, "home": self.home, "height": np.float64(self.height)}
-
-    @classmethod
-    def load(cls, path) -> Pairs:
-        with np.load(path) as f:
-            return cls(f["rgb"], f["depth"], f["poses"], f["home"], float(f["height"]))
 
     def pose(self, i: int, k: int):  # -> ssga_core.Pose
         from ssga_core import Pose

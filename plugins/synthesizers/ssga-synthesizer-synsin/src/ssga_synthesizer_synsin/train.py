@@ -25,10 +25,7 @@ from the last checkpoint in ``--out``):
 
 from __future__ import annotations
 
-import datetime
-import json
 import sys
-import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -38,11 +35,12 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from ssga_bench import TrainingRun, atomic_write_bytes, checkpoint_bytes, export_checkpoint, training_main, training_provenance
+from ssga_bench import TrainingRun, atomic_write_bytes, cached_homes, checkpoint_bytes, training_main
 from ssga_bench import training_log as log
 from ssga_synthesizer_synsin.evaluate import HeldOut, evaluate, render_heldout
 from ssga_synthesizer_synsin.model import LightOptions, SynSinLight, parameters, render
 from ssga_synthesizer_synsin.pairs import TRAIN_SEEDS, Pairs, render_pairs
+from ssga_workspace_procedural.training_homes import RENDERER_VERSION
 
 MODULE = "ssga_synthesizer_synsin.train"
 EXPORT_NAME = "synsin-light"
@@ -70,24 +68,52 @@ class Run(TrainingRun):
     """One training run in ``out``: its caches, checkpoints and timings."""
 
     config: TrainConfig
+    module = MODULE
+    export_name = EXPORT_NAME
 
-    def pairs(self) -> Pairs:
-        parts = []
+    def training_data(self) -> Pairs:
         c = self.config
-        for seed in c.train_seeds:
-            cache = self.out / f"pairs-{seed}.npz"
-            if cache.is_file():
-                parts.append(Pairs.load(cache))
-                continue
-            t = time.perf_counter()
-            part = render_pairs(seed, c.pairs_per_home, distance_m=c.distance_m, max_turn_deg=c.max_turn_deg)
-            tmp = cache.with_suffix(".tmp.npz")
-            np.savez(tmp, **part.arrays())
-            tmp.replace(cache)
-            self.timed("render", time.perf_counter() - t)
-            log(f"home {seed}: {len(part)} pairs rendered ({time.perf_counter() - t:.0f} s)")
-            parts.append(part)
-        return Pairs.concat(parts)
+        settings = {"pairs_per_home": c.pairs_per_home, "distance_m": list(c.distance_m), "max_turn_deg": c.max_turn_deg, "renderer": RENDERER_VERSION}
+
+        def render(seed: int) -> Pairs:
+            return render_pairs(seed, c.pairs_per_home, distance_m=c.distance_m, max_turn_deg=c.max_turn_deg)
+
+        return self.cached("render", lambda folder: cached_homes(folder, "pairs", c.train_seeds, settings, render, Pairs, progress=log))
+
+    def initial(self, data: Pairs) -> SynSinLight:
+        torch.manual_seed(self.config.seed)
+        return SynSinLight(LightOptions())
+
+    def network(self) -> SynSinLight:
+        return SynSinLight(LightOptions())
+
+    def training_input(self, data: Pairs) -> tuple[Pairs, np.ndarray]:
+        return data, _moves(data)  # the pairs and their moves
+
+    def heldout_figures(self, init: SynSinLight, net: SynSinLight) -> dict[str, Any]:
+        """Synthesis and depth figures of the initialisation and the result, each through the plugin as a user runs it."""
+        from ssga_synthesizer_synsin.plugin import SynSinConfig, SynSinSynthesizer
+
+        heldout = render_heldout(self.config.heldout)
+        figures = {}
+        for name, model in (("init", init), ("trained", net)):
+            path = self.out / f"{name}-eval.pt"
+            atomic_write_bytes(path, checkpoint_bytes({"state_dict": model.state_dict(), "opts": model.light.to_json()}))
+            synthesizer = SynSinSynthesizer(SynSinConfig(weights=str(path.resolve()), device="cpu"))
+            figures[name] = evaluate(synthesizer, heldout, references=name == "trained")
+        return figures
+
+    def describe(self, net: SynSinLight) -> str:
+        return (
+            f"light SynSin ({parameters(net) / 1e6:.2f} M parameters: half-resolution depth U-Net, feature encoder, "
+            "refinement U-Net) trained on procedural homes"
+        )
+
+    def provenance_extra(self, net: SynSinLight) -> dict[str, Any]:
+        return {"train_seeds": list(self.config.train_seeds), "heldout_seeds": list(self.config.heldout.seeds), "opts": net.light.to_json()}
+
+    def payload(self, net: SynSinLight) -> dict[str, Any]:
+        return {"state_dict": net.state_dict(), "opts": net.light.to_json()}
 
     metrics = ("loss", "l1", "ssim", "log_depth_l1")
     unit = "pairs"
@@ -191,52 +217,13 @@ def _step(net: SynSinLight, optimizer, data: Pairs, moves: np.ndarray, size: int
     return [loss.item(), l1.item(), s.item(), depth_loss.item()]
 
 
-def _heldout(config: TrainConfig, init: SynSinLight, net: SynSinLight, out: Path) -> dict[str, Any]:
-    from ssga_synthesizer_synsin.plugin import SynSinConfig, SynSinSynthesizer
-
-    heldout = render_heldout(config.heldout)
-    figures = {}
-    for name, model in (("init", init), ("trained", net)):
-        path = out / f"{name}-eval.pt"
-        atomic_write_bytes(path, checkpoint_bytes({"state_dict": model.state_dict(), "opts": model.light.to_json()}))
-        synthesizer = SynSinSynthesizer(SynSinConfig(weights=str(path.resolve()), device="cpu"))
-        figures[name] = evaluate(synthesizer, heldout, references=name == "trained")
-    return figures
-
-
 def main(argv: Sequence[str] | None = None) -> int:
     return training_main(MODULE, __doc__, run_training, TrainConfig(), argv, exports=f"{EXPORT_NAME}.pt and {EXPORT_NAME}.json")
 
 
-def run_training(
-    config: TrainConfig, out: Path, export_to: Path, *, evaluate_heldout: bool = True, argv: Sequence[str] | None = None
-) -> Path:
+def run_training(config: TrainConfig, out: Path, export_to: Path, *, evaluate_heldout: bool = True, argv: Sequence[str] | None = None) -> Path:
     """Every step of the module docstring; returns the exported weights' path."""
-    run = Run(config, out)
-    started = datetime.datetime.now(datetime.UTC)
-    data = run.pairs()
-    log(f"{len(data)} training pairs of {len(config.train_seeds)} homes")
-    torch.manual_seed(config.seed)
-    init = SynSinLight(LightOptions())
-    net = SynSinLight(LightOptions())
-    net.load_state_dict(init.state_dict())
-    net, history = run.train(net, torch.optim.Adam(net.parameters(), lr=config.lr[0]), (data, _moves(data)))  # the pairs and their moves
-    figures = run.figures(history)
-    if evaluate_heldout:
-        t = time.perf_counter()
-        figures["heldout"] = _heldout(config, init, net, out)
-        figures["heldout_seconds"] = round(time.perf_counter() - t, 1)
-        log(f"held-out: {json.dumps(figures['heldout'])}")
-    provenance = training_provenance(
-        f"light SynSin ({parameters(net) / 1e6:.2f} M parameters: half-resolution depth U-Net, feature encoder, refinement U-Net) trained on procedural homes",
-        MODULE, argv, started, config, figures,
-        train_seeds=list(config.train_seeds),
-        heldout_seeds=list(config.heldout.seeds),
-        opts=net.light.to_json(),
-    )
-    path = export_checkpoint(export_to, EXPORT_NAME, {"state_dict": net.state_dict(), "opts": net.light.to_json()}, provenance)
-    log(f"exported {path} ({path.stat().st_size / 1e6:.1f} MB); training took {figures['training_seconds'] / 60:.1f} min")
-    return path
+    return Run(config, out).command(export_to, evaluate_heldout=evaluate_heldout, argv=argv)
 
 
 if __name__ == "__main__":

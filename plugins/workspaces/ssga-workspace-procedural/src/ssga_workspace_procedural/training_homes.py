@@ -18,6 +18,11 @@ if TYPE_CHECKING:
     from ssga_bench import Workspace
     from ssga_core import View
 
+RENDERER_VERSION = 1
+"""Raise it when a change to the procedural homes or their renderer changes the pixels of a view:
+the learned plugins' cached training views are keyed by it (:func:`ssga_bench.cached_homes`), and
+are then rendered again instead of read back stale."""
+
 BENCH_HOME: Mapping[str, Any] = {"rooms": 8, "home_width": 18.0, "home_depth": 14.0}
 """The benchmark's home settings (``ssga_bench/configs/bench.toml``)."""
 DEMO_HOME: Mapping[str, Any] = {"rooms": 4, "home_width": 12.0, "home_depth": 10.0}
