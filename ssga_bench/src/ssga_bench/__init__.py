@@ -25,6 +25,7 @@ _EXPORTS = {
     "Learned": "ssga_bench.learned",
     "LearnedConfig": "ssga_bench.learned",
     "RANDOM_WEIGHTS": "ssga_bench.learned",
+    "RANDOM_SEED": "ssga_bench.learned",
     "find_weights": "ssga_bench.learned",
     "load_checkpoint": "ssga_bench.learned",
     "load_strict": "ssga_bench.learned",

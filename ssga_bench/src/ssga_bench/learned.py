@@ -49,6 +49,9 @@ T = TypeVar("T")
 RANDOM_WEIGHTS = "random"
 """The ``weights`` value for random initialisation (tests only; every output says so)."""
 
+RANDOM_SEED = 0
+"""Random weights are drawn from this seed: the same network in every process (worker processes agree)."""
+
 Device = Literal["auto", "cpu", "cuda"]
 
 
@@ -133,9 +136,9 @@ class Learned:
     def device(self) -> torch.device:
         return resolve_device(self.config.device, f"{self.kind} {self.name!r}")
 
-    def weights_file(self, packaged: Path | None = None) -> Path:
-        """The checkpoint ``config.weights`` names (it must exist), looked up in ``packaged`` first."""
-        return find_weights(self.config.weights, packaged, f"{self.kind} {self.name!r}")
+    def weights_file(self) -> Path:
+        """The checkpoint ``config.weights`` names (it must exist), looked up in :attr:`packaged_weights` first."""
+        return find_weights(self.config.weights, self.packaged_weights, f"{self.kind} {self.name!r}")
 
 
 _LOADED: dict[tuple[Any, ...], Any] = {}

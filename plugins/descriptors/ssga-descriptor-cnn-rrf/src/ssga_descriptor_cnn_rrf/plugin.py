@@ -192,6 +192,7 @@ class CnnRrf(Learned, RegionDescriptor):
     Config = CnnRrfConfig
     presets = {"light": LIGHT, "vgg16": VGG16}
     layouts = LAYOUTS
+    packaged_weights = HERE / "weights"  # where a relative weights file is looked up first (no weights ship: it trains per experiment)
     config: CnnRrfConfig
 
     def __init__(self, config: CnnRrfConfig | None = None) -> None:
@@ -360,7 +361,7 @@ class CnnRrf(Learned, RegionDescriptor):
 
     def _weights_path(self) -> Path:
         try:
-            return self.weights_file(HERE / "weights")
+            return self.weights_file()
         except CheckpointError as exc:
             import torch
 

@@ -25,6 +25,7 @@ from pydantic import Field, model_validator
 
 from ssga_core import Descriptor, InputError, LocalFeatures, View, hookimpl
 from ssga_bench import (
+    RANDOM_SEED,
     RANDOM_WEIGHTS,
     BoWDescriptor,
     BoWDescriptorConfig,
@@ -64,8 +65,6 @@ RANDOM_NETWORK, RANDOM_PCS = "light", 512
 RANDOM_CLUSTERS = 16
 """K of a network on random weights (PNV's ``train.ini``); with a file, K is the file's."""
 
-RANDOM_SEED = 0
-"""Random weights are drawn from this seed: the same in every process (worker processes agree)."""
 
 
 
@@ -138,7 +137,7 @@ class Pnv(Learned, BoWDescriptor):
         """The network, once per process per file; ``self.config`` gets the file's ``network`` and ``num_pcs``."""
         cfg: PnvConfig = self.config  # type: ignore[assignment]
         device = self.device
-        path = None if self.random_weights else self.weights_file(WEIGHTS_DIR).resolve()
+        path = None if self.random_weights else self.weights_file().resolve()
 
         def load() -> tuple[PatchNetVLAD, dict[str, Any]]:
             net, fields = self._random() if path is None else self._from_file(path)

@@ -29,6 +29,7 @@ from pydantic import Field, model_validator
 
 from ssga_core import CheckpointError, Data, InputError, MissingWeightsError, Parser, Regions, View, boxes_from_labels, hookimpl
 from ssga_bench import (
+    RANDOM_SEED,
     RANDOM_WEIGHTS,
     Layout,
     Learned,
@@ -73,8 +74,6 @@ ORIGINAL_SCALES = (300, 375, 450, 525, 600)
 LIGHT_SCALES = (176, 216, 256, 296, 336)
 """The same ratios around the light network's 256-pixel views: its multi-scale setting."""
 
-RANDOM_SEED = 0
-"""Random weights are :func:`~.model.init_weights` with this seed: the same in every process."""
 
 
 ALL_CLASSES = tuple(dict.fromkeys(name for names in VOCABULARIES.values() for name in names))

@@ -21,7 +21,7 @@ from typing import TYPE_CHECKING, Any, Literal
 import numpy as np
 from pydantic import Field
 
-from ssga_bench import RANDOM_WEIGHTS, Layout, Learned, LearnedConfig, file_stamp, find_weights, load_checkpoint
+from ssga_bench import RANDOM_SEED, RANDOM_WEIGHTS, Layout, Learned, LearnedConfig, file_stamp, find_weights, load_checkpoint
 
 if TYPE_CHECKING:  # torch loads when the parser is made, not when the plugin registers
     from ssga_parser_detic.model import Settings
@@ -43,8 +43,6 @@ ResNet-18 models have other backbones). The file's keys and shapes are checked a
 LVIS_EMBEDDINGS = "lvis_v1_clip_a+cname.npy"
 LVIS_NAMES = "lvis_v1_train_cat_info.json"
 
-RANDOM_SEED = 0
-"""Random weights are drawn from this seed: the same in every process."""
 
 
 class DeticConfig(LearnedConfig):

@@ -29,6 +29,7 @@ from pydantic import Field, model_validator
 
 from ssga_core import Data, Pose, Synthesis, Synthesizer, View, hookimpl
 from ssga_bench import (
+    RANDOM_SEED,
     RANDOM_WEIGHTS,
     Layout,
     Learned,
@@ -49,8 +50,6 @@ WEIGHTS_DIR = Path(__file__).parent / "weights"
 LIGHT_WEIGHTS = "midas-light.pt"
 """The packaged light network's file in :data:`WEIGHTS_DIR`."""
 
-RANDOM_SEED = 0
-"""Random weights are :func:`~.model.init_weights` with this seed: the same in every process."""
 
 AUTO, MINMAX = "auto", "minmax"
 
@@ -143,7 +142,7 @@ class MidasWarp(Learned, DepthWarp):
         first, which the calibration is checked against."""
         cfg: MidasWarpConfig = self.config  # type: ignore[assignment]
         device = self.device
-        path = None if self.random_weights else self.weights_file(WEIGHTS_DIR).resolve()
+        path = None if self.random_weights else self.weights_file().resolve()
 
         def load() -> tuple[Any, dict[str, Any], str]:
             net, fields = self._random() if path is None else self._from_file(path)

@@ -27,6 +27,7 @@ import numpy as np
 from pydantic import Field
 
 from ssga_bench import (
+    RANDOM_SEED,
     RANDOM_WEIGHTS,
     Layout,
     Learned,
@@ -60,8 +61,6 @@ LAYOUTS = (
 )
 """The networks a ``weights`` file can hold; which one, the file's keys and shapes say."""
 
-RANDOM_SEED = 0
-"""Random weights are drawn from this seed: the same in every process."""
 
 RANDOM_NETWORK = "light"
 """The network random weights build (tests only), where the config leaves it out."""
@@ -151,7 +150,7 @@ class SynSinSynthesizer(Learned, Synthesizer):
         """The network, once per process per file; ``self.config`` gets the file's ``network``."""
         cfg: SynSinConfig = self.config  # type: ignore[assignment]
         device = self.device
-        path = None if self.random_weights else self.weights_file(WEIGHTS_DIR).resolve()
+        path = None if self.random_weights else self.weights_file().resolve()
 
         def load() -> tuple[torch.nn.Module, dict[str, Any]]:
             net, fields = self._random() if path is None else self._from_file(path)
