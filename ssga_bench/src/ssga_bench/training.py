@@ -196,6 +196,11 @@ class TrainingRun:
 
     # ------------------------------------------------------------------ the command
 
+    @classmethod
+    def run_training(cls, config: Any, out: Path, export_to: Path, *, evaluate_heldout: bool = True, argv: Sequence[str] | None = None) -> Path:
+        """:meth:`command` of a run in ``out``: what :func:`training_main` calls."""
+        return cls(config, out).command(export_to, evaluate_heldout=evaluate_heldout, argv=argv)
+
     def command(self, export_to: Path, *, evaluate_heldout: bool = True, argv: Sequence[str] | None = None) -> Path:
         """The whole training command: data, initialisation, training, the steps after it,
         held-out figures, provenance and export; returns what :meth:`export` wrote."""
@@ -213,9 +218,10 @@ class TrainingRun:
         if evaluate_heldout:
             t = time.perf_counter()
             init.eval()
-            figures["heldout"] = self.heldout_figures(init, net)
-            figures["heldout_seconds"] = round(time.perf_counter() - t, 1)
-            training_log(f"held-out figures: {json.dumps(figures['heldout'])}")
+            heldout = self.heldout_figures(init, net)
+            if heldout:  # a plugin without held-out figures records none
+                figures["heldout"], figures["heldout_seconds"] = heldout, round(time.perf_counter() - t, 1)
+                training_log(f"held-out figures: {json.dumps(heldout)}")
         provenance = training_provenance(self.describe(net), self.module, argv, started, self.config, figures, **self.provenance_extra(net))
         written = self.export(net, provenance, export_to)
         size = sum(f.stat().st_size for f in written.iterdir() if f.suffix in {".pt", ".pth"}) if written.is_dir() else written.stat().st_size

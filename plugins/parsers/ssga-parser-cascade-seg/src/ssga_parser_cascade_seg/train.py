@@ -217,9 +217,8 @@ def _batch(data: Labelled, rng: np.random.Generator, batch: int, size: int, scal
     return torch.from_numpy(np.ascontiguousarray(images.transpose(0, 3, 1, 2), dtype=np.float32)), torch.from_numpy(labels)
 
 
-def run_training(config: TrainConfig, out: Path, export_to: Path, *, evaluate_heldout: bool = True, argv: Sequence[str] | None = None) -> Path:
-    """Every step of the module docstring; returns the export folder."""
-    return Run(config, out).command(export_to, evaluate_heldout=evaluate_heldout, argv=argv)
+run_training = Run.run_training
+"""Every step of the module docstring; returns what was exported."""
 
 
 def _check_vocabulary() -> None:

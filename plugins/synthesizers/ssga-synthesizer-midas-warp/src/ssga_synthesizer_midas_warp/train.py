@@ -241,9 +241,8 @@ def _batch(rgb: np.ndarray, inverse: np.ndarray, rng: np.random.Generator, jitte
     return torch.from_numpy(np.ascontiguousarray(x.transpose(0, 3, 1, 2), dtype=np.float32)), torch.from_numpy(np.ascontiguousarray(y))
 
 
-def run_training(config: TrainConfig, out: Path, export_to: Path, *, evaluate_heldout: bool = True, argv: Sequence[str] | None = None) -> Path:
-    """Every step of the module docstring; returns the exported weights' path."""
-    return Run(config, out).command(export_to, evaluate_heldout=evaluate_heldout, argv=argv)
+run_training = Run.run_training
+"""Every step of the module docstring; returns what was exported."""
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -28,7 +28,6 @@ from __future__ import annotations
 import sys
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -221,9 +220,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     return training_main(MODULE, __doc__, run_training, TrainConfig(), argv, exports=f"{EXPORT_NAME}.pt and {EXPORT_NAME}.json")
 
 
-def run_training(config: TrainConfig, out: Path, export_to: Path, *, evaluate_heldout: bool = True, argv: Sequence[str] | None = None) -> Path:
-    """Every step of the module docstring; returns the exported weights' path."""
-    return Run(config, out).command(export_to, evaluate_heldout=evaluate_heldout, argv=argv)
+run_training = Run.run_training
+"""Every step of the module docstring; returns what was exported."""
 
 
 if __name__ == "__main__":
