@@ -26,6 +26,8 @@ _EXPORTS = {
     "LearnedConfig": "ssga_bench.learned",
     "RANDOM_WEIGHTS": "ssga_bench.learned",
     "RANDOM_SEED": "ssga_bench.learned",
+    "weights_field": "ssga_bench.learned",
+    "network_field": "ssga_bench.learned",
     "find_weights": "ssga_bench.learned",
     "load_checkpoint": "ssga_bench.learned",
     "load_strict": "ssga_bench.learned",

@@ -66,6 +66,26 @@ class LearnedConfig(StageConfig):
     device: Device = Field(default="auto", description="Where the network runs: 'auto' (CUDA when present), 'cpu' or 'cuda'.")
 
 
+def weights_field(default: str, holds: str, *, what: str = "Checkpoint") -> Any:
+    """The ``weights`` field of a plugin that ships the light network ``default``, trained here;
+    ``holds`` names what else a user may give it (an official release)."""
+    return Field(
+        default=default,
+        min_length=1,
+        description=f"{what} (relative: the plugin's weights/ folder, then the working directory): the light network "
+        f"trained here (default), {holds}, or 'random' (tests only).",
+    )
+
+
+def network_field(layouts: str, *, files: str = "the weights file's") -> Any:
+    """The ``network`` field of a plugin whose files name their own network (:func:`read_layout`):
+    ``layouts`` says what each choice is; left out, the file decides."""
+    return Field(
+        default=None,
+        description=f"{layouts} Left out: {files}, read from its keys and shapes ('light' for random weights); set, the file must hold it.",
+    )
+
+
 class Learned:
     """Mixin for a stage whose config is a :class:`LearnedConfig`."""
 

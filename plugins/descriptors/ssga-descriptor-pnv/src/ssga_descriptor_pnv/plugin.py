@@ -25,20 +25,8 @@ from pydantic import Field, model_validator
 
 from ssga_core import Descriptor, InputError, LocalFeatures, View, hookimpl
 from ssga_bench import (
-    RANDOM_SEED,
-    RANDOM_WEIGHTS,
-    BoWDescriptor,
-    BoWDescriptorConfig,
-    Layout,
-    Learned,
-    file_stamp,
-    LearnedConfig,
-    load_checkpoint,
-    load_strict,
-    meta_shapes,
-    network_calls,
-    read_layout,
-    tensor_state,
+    RANDOM_SEED, RANDOM_WEIGHTS, BoWDescriptor, BoWDescriptorConfig, Layout, Learned, LearnedConfig, file_stamp,
+    load_checkpoint, load_strict, meta_shapes, network_calls, network_field, read_layout, tensor_state, weights_field,
 )
 from ssga_descriptor_pnv.layout import LIGHT_WIDTHS, STRIDE, VGG16_WIDTHS, patch_grid
 
@@ -69,17 +57,8 @@ RANDOM_CLUSTERS = 16
 
 
 class PnvConfig(BoWDescriptorConfig, LearnedConfig):
-    weights: str = Field(
-        default=LIGHT_WEIGHTS,
-        min_length=1,
-        description="Checkpoint (relative: the plugin's weights/ folder, then the working directory): the light network "
-        "trained here (default), an official file such as 'mapillary_WPCA512.pth.tar', or 'random' (tests only).",
-    )
-    network: Literal["light", "vgg16"] | None = Field(
-        default=None,
-        description="Encoder: 'light' (VGG16 4x narrower, the packaged weights) or 'vgg16' (the official models). Left out: "
-        "the weights file's, read from its keys and shapes ('light' for random weights); set, the file must hold it.",
-    )
+    weights: str = weights_field(LIGHT_WEIGHTS, "an official file such as 'mapillary_WPCA512.pth.tar'")
+    network: Literal["light", "vgg16"] | None = network_field("Encoder: 'light' (VGG16 4x narrower, the packaged weights) or 'vgg16' (the official models).")
     num_pcs: int | None = Field(
         default=None,
         ge=1,

@@ -29,18 +29,8 @@ from pydantic import Field, model_validator
 
 from ssga_core import CheckpointError, Data, InputError, MissingWeightsError, Parser, Regions, View, boxes_from_labels, hookimpl
 from ssga_bench import (
-    RANDOM_SEED,
-    RANDOM_WEIGHTS,
-    Layout,
-    Learned,
-    file_stamp,
-    LearnedConfig,
-    load_checkpoint,
-    load_strict,
-    meta_shapes,
-    network_calls,
-    read_layout,
-    tensor_state,
+    RANDOM_SEED, RANDOM_WEIGHTS, Layout, Learned, LearnedConfig, file_stamp, load_checkpoint, load_strict, meta_shapes,
+    network_calls, network_field, read_layout, tensor_state, weights_field,
 )
 from ssga_parser_cascade_seg.classes import VOCABULARIES
 
@@ -91,19 +81,15 @@ def unknown_class(wanted: Iterable[str], names: Sequence[str], said: str) -> str
 
 
 class CascadeSegConfig(LearnedConfig):
-    weights: str = Field(
-        default=LIGHT_WEIGHTS,
-        min_length=1,
-        description="Folder holding encoder_epoch_20.pth and decoder_epoch_20.pth, as CSAIL's releases are laid out "
-        "(relative: the plugin's weights/ folder, then the working directory): the light network trained here "
-        "(default), an official release such as 'ade20k-resnet50dilated-ppm_deepsup', or 'random' (tests only).",
+    weights: str = weights_field(
+        LIGHT_WEIGHTS,
+        "an official release such as 'ade20k-resnet50dilated-ppm_deepsup'",
+        what="Folder holding encoder_epoch_20.pth and decoder_epoch_20.pth, as CSAIL's releases are laid out",
     )
-    network: Literal["light", "resnet18dilated", "resnet50dilated"] | None = Field(
-        default=None,
-        description="Encoder layout (decoder: PPM with deep supervision): 'light' (ResNet18-dilated at a quarter "
-        "of its widths, the packaged weights), or the official 'resnet18dilated' (fc_dim 512) or "
-        "'resnet50dilated' (fc_dim 2048). Left out: the weights files', read from their keys and shapes "
-        "('light' for random weights); set, the files must hold it.",
+    network: Literal["light", "resnet18dilated", "resnet50dilated"] | None = network_field(
+        "Encoder layout (decoder: PPM with deep supervision): 'light' (ResNet18-dilated at a quarter of its widths, the "
+        "packaged weights), or the official 'resnet18dilated' (fc_dim 512) or 'resnet50dilated' (fc_dim 2048).",
+        files="the weights files'",
     )
     classes: Literal["procedural", "ade20k"] | None = Field(
         default=None,

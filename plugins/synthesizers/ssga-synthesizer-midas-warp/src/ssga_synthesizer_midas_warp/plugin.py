@@ -29,17 +29,8 @@ from pydantic import Field, model_validator
 
 from ssga_core import Data, Pose, Synthesis, Synthesizer, View, hookimpl
 from ssga_bench import (
-    RANDOM_SEED,
-    RANDOM_WEIGHTS,
-    Layout,
-    Learned,
-    file_stamp,
-    LearnedConfig,
-    load_checkpoint,
-    load_strict,
-    meta_shapes,
-    read_layout,
-    tensor_state,
+    RANDOM_SEED, RANDOM_WEIGHTS, Layout, Learned, LearnedConfig, file_stamp, load_checkpoint, load_strict, meta_shapes,
+    network_field, read_layout, tensor_state, weights_field,
 )
 from ssga_synthesizer_depth_warp.plugin import DepthWarp, DepthWarpConfig
 from ssga_synthesizer_midas_warp.calibration import Calibration, calibration_path, minmax_depth, sha256_file
@@ -69,17 +60,10 @@ RANDOM_NETWORK = "light"
 class MidasWarpConfig(DepthWarpConfig, LearnedConfig):
     """MiDaS's network, weights and calibration; the warp's fields are depth-warp's."""
 
-    weights: str = Field(
-        default=LIGHT_WEIGHTS,
-        min_length=1,
-        description="Checkpoint (relative: the plugin's weights/ folder, then the working directory): the light network trained "
-        "here (default), the official 'midas_v21_small_256.pt', or 'random' (tests only).",
-    )
-    network: Literal["light", "v21-small"] | None = Field(
-        default=None,
-        description="'light': the narrow MiDaS-small trained here (the packaged weights); 'v21-small': MiDaS v2.1 small "
-        "(EfficientNet-Lite3, 64 features), the official file's layout. Left out: the weights file's, read from its keys "
-        "and shapes ('light' for random weights); set, the file must hold it.",
+    weights: str = weights_field(LIGHT_WEIGHTS, "the official 'midas_v21_small_256.pt'")
+    network: Literal["light", "v21-small"] | None = network_field(
+        "'light': the narrow MiDaS-small trained here (the packaged weights); 'v21-small': MiDaS v2.1 small "
+        "(EfficientNet-Lite3, 64 features), the official file's layout."
     )
     calibration: str = Field(
         default=AUTO,

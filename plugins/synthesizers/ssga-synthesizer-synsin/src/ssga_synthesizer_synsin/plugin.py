@@ -27,17 +27,8 @@ import numpy as np
 from pydantic import Field
 
 from ssga_bench import (
-    RANDOM_SEED,
-    RANDOM_WEIGHTS,
-    Layout,
-    Learned,
-    file_stamp,
-    LearnedConfig,
-    load_checkpoint,
-    load_strict,
-    meta_shapes,
-    read_layout,
-    tensor_state,
+    RANDOM_SEED, RANDOM_WEIGHTS, Layout, Learned, LearnedConfig, file_stamp, load_checkpoint, load_strict, meta_shapes,
+    network_field, read_layout, tensor_state, weights_field,
 )
 from ssga_core import CheckpointError, Data, InputError, Pose, Synthesis, Synthesizer, View, hookimpl
 
@@ -69,17 +60,10 @@ RANDOM_NETWORK = "light"
 class SynSinConfig(LearnedConfig):
     """Which network renders, and how its points are splatted."""
 
-    weights: str = Field(
-        default=LIGHT_WEIGHTS,
-        min_length=1,
-        description="Checkpoint (relative: the plugin's weights/ folder, then the working directory): the light network "
-        "trained here (default), SynSin's 'mp3d/synsin.pth', or 'random' (tests only).",
-    )
-    network: Literal["light", "synsin"] | None = Field(
-        default=None,
-        description="'light' (this package's network, 0.6 M parameters, the packaged weights) or 'synsin' (the official "
-        "MP3D model's layout: ResNet encoder and decoder of width 64, 32-filter depth U-Net). Left out: the weights file's, "
-        "read from its keys and shapes ('light' for random weights); set, the file must hold it.",
+    weights: str = weights_field(LIGHT_WEIGHTS, "SynSin's 'mp3d/synsin.pth'")
+    network: Literal["light", "synsin"] | None = network_field(
+        "'light' (this package's network, 0.6 M parameters, the packaged weights) or 'synsin' (the official "
+        "MP3D model's layout: ResNet encoder and decoder of width 64, 32-filter depth U-Net)."
     )
     radius: float | None = Field(
         default=None,
