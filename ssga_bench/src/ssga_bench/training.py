@@ -39,8 +39,8 @@ from __future__ import annotations
 
 import argparse
 import datetime
-import json
 import hashlib
+import json
 import math
 import platform
 import shlex
@@ -205,8 +205,7 @@ class TrainingRun:
         """The whole training command: data, initialisation, training, the steps after it,
         held-out figures, provenance and export; returns what :meth:`export` wrote."""
         started = datetime.datetime.now(datetime.timezone.utc)
-        self.invocation = command_line(self.module, argv)
-        """The command as typed (a calibration or other record written on the way names it)."""
+        self.invocation = command_line(self.module, argv)  # as typed: a record written on the way (a calibration) names it
         data = self.training_data()
         training_log(f"{len(data)} training {self.unit} of {len(self.config.train_seeds)} homes")
         init = self.initial(data)
