@@ -74,6 +74,18 @@ def test_one_real_image_per_cell_and_targets_for_the_other_classes(plan):
     assert {s.place for s in train} | {s.place for s in targets} == set(range(48))
 
 
+def test_a_validation_quota_per_level_draws_more_hard_views_and_leaves_the_test_draw_as_it_was(protocol, plan):
+    config = ProtocolConfig(cells=4, test_per_class=3, val_per_class=1, seed=1)
+    plain = Protocol(two_rooms(), Camera(), config).plan("two-rooms")
+    quota = Protocol(two_rooms(), Camera(), config.model_copy(update={"val_per_level": 12})).plan("two-rooms")
+    assert [s.pose for s in quota.split("test")] == [s.pose for s in plain.split("test")] == [s.pose for s in plan.split("test")]
+    before, after = (np.bincount([s.level for s in p.split("val")], minlength=4)[1:] for p in (plain, quota))
+    # Best effort, as for test views: L2 reaches its quota, L3 gets what twice the share per class allows.
+    assert after[1] >= 12 > before[1] and after[2] > before[2], f"more L2/L3 validation views: {before} -> {after}"
+    per_class = np.bincount([s.place for s in quota.split("val")], minlength=48)
+    assert per_class.min() >= 1 and per_class.max() <= 2, "each class: its share, then at most twice it"
+
+
 def test_test_views_fill_every_class_and_belong_to_it(protocol, plan):
     tests = plan.split("test")
     assert np.bincount([s.place for s in tests], minlength=48).tolist() == [3] * 48

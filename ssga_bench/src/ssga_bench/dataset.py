@@ -82,15 +82,21 @@ def sample_from_record(record: dict[str, Any]) -> Sample:
         raise InputError(f"sample record {record.get('id', record)!r}: missing or bad field ({exc})") from None
 
 
+def protocol_record(protocol: ProtocolConfig) -> dict[str, Any]:
+    """The protocol as a dataset records it: without ``fit`` (it changes nothing a finished dataset
+    holds; a fitted one says so in fitted.json), and without a setting added since at its default,
+    so that datasets built before it stay valid."""
+    added_since = {"val_per_level"} if protocol.val_per_level == 0 else set()
+    return protocol.model_dump(mode="json", exclude={"fit", *added_since})
+
+
 def _header(workspace: AnyWorkspace, source: dict[str, Any], protocol: ProtocolConfig) -> dict[str, Any]:
     cam = workspace.camera
     return {
         "format": FORMAT,
         "workspace": workspace.name,
         "source": source,
-        # Without `fit`: it changes nothing a finished dataset holds (a fitted one says so in fitted.json),
-        # so datasets built before it existed, and with either setting, stay the same.
-        "protocol": protocol.model_dump(mode="json", exclude={"fit"}),
+        "protocol": protocol_record(protocol),
         "camera": {"width": cam.width, "height": cam.height, "hfov_deg": cam.hfov_deg},
     }
 
@@ -120,7 +126,7 @@ def build_workspace(
     record = {"name": source.name, **source.config.model_dump(mode="json")}
     fit = protocol.fit == "auto" or (protocol.fit is None and source.cls.fits_protocol)
     if out is None:
-        digest = hashlib.blake2b(json.dumps([record, protocol.model_dump(mode="json", exclude={"fit"})], sort_keys=True).encode(), digest_size=4)
+        digest = hashlib.blake2b(json.dumps([record, protocol_record(protocol)], sort_keys=True).encode(), digest_size=4)
         out = Path("runs") / "workspaces" / f"{workspace.name}-{digest.hexdigest()}"
     return build_dataset(
         workspace, out, source=record, protocol=protocol, overwrite=overwrite, progress=progress, render=(executor, source, batch) if executor else None, fit=fit

@@ -34,6 +34,13 @@ class ProtocolConfig(BaseModel):
         description="Validation views per class, drawn as test views are but apart from them: used only to choose among "
         "variants (the best single variant, fusion selection), never for training or for the reported scores.",
     )
+    val_per_level: int = Field(
+        default=0,
+        ge=0,
+        le=100_000,
+        description="Keep drawing validation views (up to twice val_per_class per class) until each level has this many, "
+        "so a fusion learned on them (stacking) sees the hard levels too; 0: no quota.",
+    )
     test_radius: float = Field(
         default=3.0, gt=0.0, le=100.0, description="Test cameras stand within this distance of their cell's centroid, metres."
     )

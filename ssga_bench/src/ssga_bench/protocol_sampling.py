@@ -123,11 +123,12 @@ class ProtocolSampling(ProtocolGeometry):
         split: Split = "test",
         per_class: int | None = None,
     ) -> list[Sample]:
-        """``per_class`` views of every class (default ``test_per_class``); test views then
-        continue (up to twice that per class) until every level has ``test_per_level``."""
+        """``per_class`` views of every class (default ``test_per_class``); views then continue
+        (up to twice that per class) until every level has the split's quota (``test_per_level``,
+        ``val_per_level``)."""
         c = self.config
         per_class = c.test_per_class if per_class is None else per_class
-        quota = c.test_per_level if split == "test" else 0
+        quota = c.test_per_level if split == "test" else c.val_per_level
         rank_of = {cell: rank for rank, cell in enumerate(cells)}
         wanted = per_class * len(cells) * c.orientations
         counts = np.zeros(len(cells) * c.orientations, dtype=int)
