@@ -44,8 +44,8 @@ from ssga_bench.cache import FeatureCache
 from ssga_bench.config import TrainingConfig
 from ssga_bench.dataset import Dataset
 from ssga_bench.evaluation import metrics, truth_ranks
-from ssga_bench.experiment import jittered
 from ssga_bench.gcn import train_gcn
+from ssga_bench.training_plan import jittered
 from ssga_core.config import resolve_stage
 from ssga_core.pipeline import BoundVariant, build_graph
 from ssga_core.plugins import default_registry

@@ -102,7 +102,7 @@ def test_runs_fuses_reports_and_resumes(tmp_path, dataset, stand_in_registry, mo
     def no_task(*args, **kwargs):
         raise AssertionError("a task ran again")
 
-    monkeypatch.setattr("ssga_bench.experiment.train_gcn", no_training)
+    monkeypatch.setattr("ssga_bench.variant_training.train_gcn", no_training)
     # Nor is a real view looked at again, nor a finished variant handed to a worker.
     monkeypatch.setattr("ssga_bench.tasks.describe_views", no_task)
     monkeypatch.setattr("ssga_bench.experiment.train_variant", no_task)
@@ -111,7 +111,7 @@ def test_runs_fuses_reports_and_resumes(tmp_path, dataset, stand_in_registry, mo
     assert again.markdown() == report.markdown()
     assert not (tmp_path / "scoring").exists()  # the scored chunks went once every variant's scores were written
     monkeypatch.undo()
-    monkeypatch.setattr("ssga_bench.experiment.train_gcn", no_training)
+    monkeypatch.setattr("ssga_bench.variant_training.train_gcn", no_training)
     with pytest.raises(AssertionError, match="trained again"):
         run_experiment(experiment(stand_in_registry, seed=1), dataset, tmp_path)
 
@@ -139,7 +139,7 @@ def test_an_interrupted_scoring_resumes_with_the_chunks_it_had_not_scored(tmp_pa
 
     again = []
     monkeypatch.setattr(runner, "score_chunk", lambda job: again.append(job.ids) or score_chunk(job))
-    monkeypatch.setattr(runner, "train_gcn", lambda *a, **k: pytest.fail("trained again"))
+    monkeypatch.setattr("ssga_bench.variant_training.train_gcn", lambda *a, **k: pytest.fail("trained again"))
     resumed, _ = run_experiment(exp, dataset, tmp_path / "cut")
     assert not set(again) & set(scored) and again  # the two scored chunks were not scored again
     assert resumed.markdown() == whole.markdown()
@@ -174,7 +174,7 @@ def test_variants_without_s_train_every_class_of_a_cell_on_its_real_graph(tmp_pa
         (found,) = [run for run in runs if len({id(g) for g in run[0]}) == len(dataset.split("train"))]
         return found
 
-    monkeypatch.setattr("ssga_bench.experiment.train_gcn", recording)
+    monkeypatch.setattr("ssga_bench.variant_training.train_gcn", recording)
     exp = experiment(stand_in_registry)
     run_experiment(exp, dataset, tmp_path)
     graphs, labels = without_s(seen.values())
@@ -205,7 +205,7 @@ def test_the_oracle_renders_the_truth_with_an_exact_point_map():
 
 
 def test_a_descriptor_that_learns_without_a_state_is_refused_by_name():
-    from ssga_bench.experiment import fitted_state
+    from ssga_bench.variant_training import fitted_state
     from ssga_core import PluginError
     from ssga_core.testing.stages import PatchColour
 
@@ -219,7 +219,7 @@ def test_a_descriptor_that_learns_without_a_state_is_refused_by_name():
 
 
 def test_graph_matching_classifies_without_training_a_network(tmp_path, dataset, stand_in_registry, monkeypatch):
-    monkeypatch.setattr("ssga_bench.experiment.train_gcn", lambda *a, **k: pytest.fail("a GCN was trained"))
+    monkeypatch.setattr("ssga_bench.variant_training.train_gcn", lambda *a, **k: pytest.fail("a GCN was trained"))
     exp = experiment(stand_in_registry, classifier="graph-match", match_whole=0.25)
     report, _ = run_experiment(exp, dataset, tmp_path)
     folder = tmp_path / "variants" / "PC-ST_PDS"
