@@ -123,3 +123,23 @@ def test_the_core_and_the_benchmark_layer_name_no_plugin(ssga_installed_registry
             if isinstance(node, ast.Constant) and isinstance(node.value, str) and node.value in names:
                 named.append(f"{path.relative_to(REPO)}:{node.lineno} names {node.value!r}")
     assert names and named == []
+
+
+TRAINING_COMMANDS = sorted(p for source in PLUGIN_SOURCES for p in (source / "train.py", source / "evaluate.py") if p.is_file())
+
+
+@pytest.mark.parametrize("path", TRAINING_COMMANDS, ids=lambda p: f"{p.parent.name}/{p.name}")
+def test_learned_plugins_train_and_evaluate_through_the_kit(path):
+    """A plugin's training and evaluation commands are the kit's (`TrainingRun.command` with
+    `training_main`, `evaluation_main`): none parses its own arguments or loops on its own."""
+    source = path.read_text(encoding="utf-8")
+    assert "ArgumentParser(" not in source, f"{path.relative_to(REPO)} parses its own command line"
+    if path.name == "train.py":
+        assert "(TrainingRun):" in source and "training_main(" in source, f"{path.relative_to(REPO)}: a Run on TrainingRun, main on training_main"
+        assert "def run_training(" not in source, f"{path.relative_to(REPO)} drives the command itself (TrainingRun.command does)"
+    else:
+        assert "evaluation_main(" in source, f"{path.relative_to(REPO)}: main on evaluation_main"
+
+
+def test_the_training_commands_are_found():
+    assert {p.parent.name for p in TRAINING_COMMANDS} >= {"ssga_descriptor_pnv", "ssga_parser_cascade_seg", "ssga_synthesizer_midas_warp", "ssga_synthesizer_synsin", "ssga_descriptor_tinyseg"}
