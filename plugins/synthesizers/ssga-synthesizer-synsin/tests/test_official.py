@@ -21,7 +21,7 @@ import pytest
 import torch
 from ssga_core.testing import make_view
 from ssga_bench.testing import RunsCode
-from ssga_synthesizer_synsin.model import DROPPED_PREFIXES, Splat, SynSin, official_state_dict, spectral_weight
+from ssga_synthesizer_synsin.official import DROPPED_PREFIXES, Splat, SynSin, official_state_dict, spectral_weight
 from ssga_synthesizer_synsin.plugin import SynSinConfig, SynSinSynthesizer
 
 from ssga_core import CheckpointError

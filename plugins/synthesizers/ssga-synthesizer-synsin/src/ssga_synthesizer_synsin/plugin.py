@@ -156,7 +156,7 @@ class SynSinSynthesizer(Learned, Synthesizer):
     def _from_file(self, path: Path) -> tuple[torch.nn.Module, dict[str, Any]]:
         import torch
 
-        from ssga_synthesizer_synsin.model import SynSin, official_state_dict
+        from ssga_synthesizer_synsin.official import SynSin, official_state_dict
 
         cfg: SynSinConfig = self.config  # type: ignore[assignment]
         # SynSin pickles its options as an argparse.Namespace, which weights_only loading refuses unless allowed.
@@ -180,7 +180,8 @@ class SynSinSynthesizer(Learned, Synthesizer):
     def _network(self, name: str, opts: Any, path: Path | None = None) -> torch.nn.Module:
         """The ``name`` network with a file's ``opts``: the light network's widths and renderer (a dict, as it
         saves them; none: the defaults), SynSin's renderer (its ``argparse.Namespace``)."""
-        from ssga_synthesizer_synsin.model import LightOptions, SynSin, SynSinLight, options_from_opts
+        from ssga_synthesizer_synsin.model import LightOptions, SynSinLight
+        from ssga_synthesizer_synsin.official import SynSin, options_from_opts
 
         if name != "light":
             return SynSin(options_from_opts(opts))
