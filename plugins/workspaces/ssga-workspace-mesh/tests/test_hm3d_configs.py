@@ -31,6 +31,6 @@ def test_the_config_of_a_paper_scene_validates_and_names_its_files(scene):
         experiment = load_experiment(path, registry)
         assert experiment.config.protocol.cells == 10 and experiment.config.protocol.cell_size == 2.0
     else:  # without the data: validation names the file, before anything runs
-        assert MeshWorkspaceSource.missing(config) == [f"path: no such mesh file {config.path} (expected a .glb, .gltf or .obj file)"]
+        assert MeshWorkspaceSource.missing(config) == [f"path: no such mesh file {config.path} (expected a .glb, .gltf, .obj or .ply file)"]
         with pytest.raises(ConfigError, match=r"workspace\.path: no such mesh file .*basis\.glb"):
             load_experiment(path, registry)

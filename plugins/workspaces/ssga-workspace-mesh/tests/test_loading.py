@@ -88,7 +88,7 @@ def test_obj_with_mtl_and_texture_loads_upright(tmp_path, camera, pattern):
         ("missing.glb", None, "no such mesh file"),
         ("garbage.glb", b"\x00not a glb at all" * 10, "cannot read a triangle mesh"),
         ("garbage.obj", b"this is not\nan obj file\n", "cannot read a triangle mesh"),
-        ("scene.ply", b"ply\n", "unsupported mesh format"),
+        ("scene.stl", b"solid nothing\nendsolid\n", "unsupported mesh format"),  # PLY is read: tests/test_ply.py
     ],
 )
 def test_bad_mesh_files_are_one_line_input_errors(tmp_path, name, content, expected):

@@ -6,6 +6,11 @@ face outwards (normals point out of solid walls and furniture, into the rooms). 
 second one is what tells "inside a thick wall" from "inside a room": from inside a
 solid, a horizontal ray sees the back of a surface.
 
+A scan that ends below the camera (no ceiling, walls scanned to 1.4 m as ScanNet's are)
+has nothing at camera height to enclose its floor: :func:`floor_plan_for_scan` then
+derives the plan lower, inside the scan, and says so; where no height works, the error
+names which condition no point met (:class:`NoFreeFloor`).
+
 The JSON format is the core's (:meth:`ssga_bench.workspace.FloorPlan.to_json`).
 """
 
@@ -23,7 +28,7 @@ from shapely.geometry.base import BaseGeometry
 from ssga_core import InputError
 from ssga_bench import read_json
 from ssga_bench import FloorPlan, grid_polygons
-from ssga_workspace_mesh.meshdata import RayCaster, flatten_scene
+from ssga_workspace_mesh.meshdata import FlatMesh, RayCaster, flatten_scene
 
 PROBE_DIRECTIONS = 16
 """Horizontal rays cast from each probe point."""
@@ -33,6 +38,35 @@ ENCLOSED_FRACTION = 0.75
 an open door or window lets a few escape, standing outside lets about half escape."""
 
 _BATCH = 1 << 15  # probe points per Embree call, to bound memory on large scenes
+
+
+WALL_BAND = (0.3, 1.0)
+"""Heights, metres, at which every room scan has its walls: the reference for :func:`wall_top`."""
+
+WALL_SHARE = 0.5
+"""The walls end where less than this share of the vertical area per metre of height of
+:data:`WALL_BAND` is left."""
+
+LOWERED_SHARE = 0.8
+"""Where the configured camera height meets no geometry, views are taken at this share of
+the walls' top (:func:`floor_plan_for_scan`)."""
+
+
+class NoFreeFloor(InputError):
+    """:func:`floor_plan_from_mesh` found nowhere to stand.
+
+    Attributes:
+        cause: ``"floor"`` (no horizontal surface at ``z = 0``), ``"height"`` (floor, but
+            nothing at camera height around it: the mesh ends below the camera),
+            ``"solid"`` (every such point is inside a solid) or ``"clearance"`` (none is
+            far enough from the occluders).
+        reason: the message without the mesh's name.
+        wall_top: height the mesh's walls reach (:func:`wall_top`), None if it has none.
+    """
+
+    def __init__(self, source: str, cause: str, reason: str, wall_top: float | None) -> None:
+        super().__init__(f"{source}: found no free floor: {reason}")
+        self.cause, self.reason, self.wall_top = cause, reason, wall_top
 
 
 def floor_plan_from_mesh(
@@ -64,20 +98,105 @@ def floor_plan_from_mesh(
         any solid, farther than ``clearance`` from every occluder.
 
     Raises:
-        InputError: no point of the mesh qualifies as free floor.
+        NoFreeFloor: no point of the mesh qualifies as free floor; the message says which
+            condition none met (an :class:`InputError`).
     """
     flat = flatten_scene(scene)
     caster = RayCaster(flat.vertices, flat.faces)
     probe = _Probe(caster, flat.normals, camera_height)
     occluders = _cross_section(flat.vertices, flat.faces, probe, camera_height, wall_width)
-    standable = _standable_area(flat.vertices, probe, resolution, floor_tolerance)
+    standable, met = _standable_area(flat.vertices, probe, resolution, floor_tolerance)
     free = _polygonal(standable.difference(occluders.buffer(clearance)), min_area=resolution**2)
     if free.is_empty:
-        raise InputError(
-            f"{source}: found no free floor (a horizontal surface at z = 0 +- {floor_tolerance} m, more than "
-            f"{clearance} m from anything at camera height {camera_height} m); is the floor at z = 0 and up_axis right?"
-        )
+        top = wall_top(flat)
+        if not met["floor"]:
+            cause, reason = "floor", f"no horizontal surface at z = 0 +- {floor_tolerance} m; is the floor at z = 0 and up_axis right?"
+        elif not met["outside"]:
+            cause, reason = "solid", (
+                f"every floor point is inside a solid at camera height {camera_height:g} m (surfaces should face out of "
+                "solids, into rooms)"
+            )
+        elif not met["enclosed"]:
+            walls = f"the mesh's walls end at about {top:.2f} m; set camera_height below that" if top is not None else "the mesh has no walls"
+            cause, reason = "height", (
+                f"no geometry at camera height {camera_height:g} m around the floor (no roof above it, and fewer than "
+                f"{ENCLOSED_FRACTION:.0%} of horizontal rays there hit anything): {walls}"
+            )
+        else:
+            cause, reason = "clearance", f"no floor farther than {clearance:g} m from anything at camera height {camera_height:g} m"
+        raise NoFreeFloor(source, cause, reason, top)
     return FloorPlan(free=free, occluders=occluders)
+
+
+def floor_plan_for_scan(
+    scene: trimesh.Scene | trimesh.Trimesh, camera_height: float, *, source: str = "mesh"
+) -> tuple[FloorPlan, float, str | None]:
+    """:func:`floor_plan_from_mesh` at ``camera_height``, or lower where the mesh ends below it.
+
+    A scan without its ceiling ends where the scanner stopped (ScanNet's near 1.4 m, below
+    the default camera's 1.5 m), so nothing encloses the floor at the camera's height.
+    Then the plan is derived again at :data:`LOWERED_SHARE` of the walls' top (:func:`wall_top`),
+    and the views are to be taken there. Where the configured height works, the plan is
+    exactly :func:`floor_plan_from_mesh`'s.
+
+    Returns:
+        The plan, the camera height it was derived at, and a line saying why that is not
+        the configured one (None when it is).
+
+    Raises:
+        NoFreeFloor: no free floor at either height; the message names both.
+    """
+    try:
+        return floor_plan_from_mesh(scene, camera_height, source=source), camera_height, None
+    except NoFreeFloor as exc:
+        if exc.cause != "height" or exc.wall_top is None or round(LOWERED_SHARE * exc.wall_top, 2) >= camera_height:
+            raise
+        top, lower = exc.wall_top, round(LOWERED_SHARE * exc.wall_top, 2)
+    try:
+        plan = floor_plan_from_mesh(scene, lower, source=source)
+    except NoFreeFloor as again:
+        raise NoFreeFloor(
+            source, again.cause, f"none at camera height {camera_height:g} m (the mesh's walls end at about {top:.2f} m), "
+            f"nor at {lower:g} m: {again.reason}", again.wall_top
+        ) from None
+    note = (
+        f"{source}: no geometry at camera_height {camera_height:g} m (the scan's walls end at about {top:.2f} m); "
+        f"views are taken at {lower:g} m, {LOWERED_SHARE:g} x the walls' top (set camera_height to choose)"
+    )
+    return plan, lower, note
+
+
+def wall_top(flat: FlatMesh, bin_size: float = 0.02) -> float | None:
+    """Height at which the walls of a mesh (floor at ``z = 0``) end; None if it has none above the floor.
+
+    Near-vertical surface area per metre of height, each face spread evenly over the
+    heights it spans, is measured in ``bin_size`` bins (smoothed over 10 cm); the walls
+    end at the first height above :data:`WALL_BAND` where it falls below :data:`WALL_SHARE`
+    of its median in that band. A room with a ceiling gives its ceiling's height, a scan
+    that stopped at 1.4 m about 1.4 m, whatever furniture stands higher.
+    """
+    triangles = flat.vertices[flat.faces]
+    vertical = np.abs(flat.normals[:, 2]) < 0.3
+    low, high = np.clip(triangles[vertical, :, 2].min(axis=1), 0.0, None), triangles[vertical, :, 2].max(axis=1)
+    keep = high - low > 1e-6
+    if not keep.any():
+        return None
+    tri = triangles[vertical][keep].astype(np.float64)
+    area = np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1) / 2.0
+    low, high = low[keep], high[keep]
+    bins = min(math.ceil(float(high.max()) / bin_size) + 1, 100_000)
+    rate = area / (high - low)
+    start = np.minimum((low / bin_size).astype(np.int64), bins - 1)
+    stop = np.minimum((high / bin_size).astype(np.int64), bins - 1)
+    per_metre = np.cumsum(np.bincount(start, rate, bins) - np.bincount(stop, rate, bins))
+    per_metre = np.convolve(per_metre, np.ones(5) / 5.0, mode="same")
+    centres = (np.arange(bins) + 0.5) * bin_size
+    band = (centres >= WALL_BAND[0]) & (centres <= WALL_BAND[1])
+    if not band.any() or np.median(per_metre[band]) <= 0:
+        return float(high.max())
+    above = centres > WALL_BAND[0]
+    below = np.flatnonzero(above & (per_metre < WALL_SHARE * float(np.median(per_metre[band]))))
+    return float(centres[below[0]]) if len(below) else float(high.max())
 
 
 class _Probe:
@@ -136,13 +255,16 @@ def _cross_section(vertices: np.ndarray, faces: np.ndarray, probe: _Probe, heigh
     return _polygonal(shapely.union_all([outline, *solid]))
 
 
-def _standable_area(vertices: np.ndarray, probe: _Probe, resolution: float, floor_tolerance: float) -> BaseGeometry:
-    """Grid cells (as polygons) whose centre has floor below and a roof above or walls around, outside any solid."""
+def _standable_area(
+    vertices: np.ndarray, probe: _Probe, resolution: float, floor_tolerance: float
+) -> tuple[BaseGeometry, dict[str, bool]]:
+    """Grid cells (as polygons) whose centre has floor below and a roof above or walls around, outside
+    any solid; and whether any centre met the conditions in turn (``floor``, ``outside`` a solid, ``enclosed``)."""
     lo, hi = vertices[:, :2].min(axis=0), vertices[:, :2].max(axis=0)
     xs = np.arange(lo[0] + resolution / 2.0, hi[0], resolution)
     ys = np.arange(lo[1] + resolution / 2.0, hi[1], resolution)
     if len(xs) == 0 or len(ys) == 0:
-        return shapely.Polygon()
+        return shapely.Polygon(), {"floor": False, "outside": False, "enclosed": False}
     gx, gy = np.meshgrid(xs, ys)
     xy = np.stack([gx.ravel(), gy.ravel()], axis=-1).astype(np.float32)
 
@@ -151,10 +273,13 @@ def _standable_area(vertices: np.ndarray, probe: _Probe, resolution: float, floo
         floor = down & (np.abs(floor_z) <= floor_tolerance) & (level > 0.9)
         up, _, _ = probe.vertical(points, down=False)
         hits, back = probe.horizontal(points)
-        return floor & (up | (hits >= ENCLOSED_FRACTION)) & (back <= 0.5)
+        outside = floor & (back <= 0.5)
+        return np.stack([floor, outside, outside & (up | (hits >= ENCLOSED_FRACTION))], axis=-1)
 
-    mask = _batched(classify, xy).reshape(gy.shape)
-    return grid_polygons(mask, (xs[0] - resolution / 2.0, ys[0] - resolution / 2.0), resolution)
+    conditions = _batched(classify, xy)
+    met = dict(zip(("floor", "outside", "enclosed"), (bool(c) for c in conditions.any(axis=0)), strict=True))
+    mask = conditions[:, 2].reshape(gy.shape)
+    return grid_polygons(mask, (xs[0] - resolution / 2.0, ys[0] - resolution / 2.0), resolution), met
 
 
 def _batched(fn: Callable[[np.ndarray], np.ndarray], points: np.ndarray) -> np.ndarray:

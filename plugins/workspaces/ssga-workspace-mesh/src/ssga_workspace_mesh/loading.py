@@ -1,4 +1,4 @@
-"""Loading mesh files (GLB/glTF, OBJ+MTL) into ssga's world frame, with their semantic sidecar.
+"""Loading mesh files (GLB/glTF, OBJ+MTL, PLY) into ssga's world frame, with their semantic sidecar.
 
 Habitat, HM3D and glTF store scenes ``y`` up; ssga's world is ``z`` up
 (:mod:`ssga_core.geometry`). Loading converts with ``(x, y, z) = (x_h, -z_h, y_h)``,
@@ -15,6 +15,9 @@ Two things Habitat's scenes need are handled here too: textures compressed with 
 Universal are decoded (:mod:`.basisu`), and HM3D's semantic mesh and table beside
 the scene (``NAME.semantic.glb``, ``NAME.semantic.txt``) are added to it as label
 surfaces (:mod:`.hm3d`), before the change of frame, so that they move with it.
+
+PLY files (scans: ScanNet, phones, MeshLab) are read by :mod:`.ply`, GLB/glTF and OBJ by
+trimesh.
 """
 
 from __future__ import annotations
@@ -34,6 +37,7 @@ from ssga_workspace_mesh.basisu import with_decoded_textures
 from ssga_workspace_mesh.gravity import UpAxis, level_scene, parse_up_axis
 from ssga_workspace_mesh.hm3d import load_semantic_surface, semantic_files
 from ssga_workspace_mesh.meshdata import geometry_ids
+from ssga_workspace_mesh.ply import read_ply
 
 Y_UP_TO_Z_UP = np.array(
     [
@@ -48,7 +52,7 @@ Y_UP_TO_Z_UP = np.array(
 Z_UP_TO_Y_UP = Y_UP_TO_Z_UP.T
 """Its inverse, for writing ``y``-up files from an ssga scene."""
 
-MESH_SUFFIXES = (".glb", ".gltf", ".obj")
+MESH_SUFFIXES = (".glb", ".gltf", ".obj", ".ply")
 
 
 def sidecar_path(path: str | Path) -> Path:
@@ -69,8 +73,8 @@ def load_mesh_scene(
     """Load a mesh file into ssga's world frame, with the ids from its sidecar.
 
     Args:
-        path: a ``.glb``, ``.gltf`` or ``.obj`` file (an OBJ's ``.mtl`` and textures
-            beside it).
+        path: a ``.glb``, ``.gltf``, ``.obj`` or ``.ply`` file (an OBJ's ``.mtl`` and
+            textures, a PLY's ``TextureFile``, beside it).
         up_axis: ``"y"`` for files in glTF/Habitat's ``y``-up convention (the default),
             ``"z"`` for files already ``z`` up; ``"auto"`` finds up from the mesh, or an
             ``[x, y, z]`` vector gives it (:mod:`.gravity`): the scene is then levelled
@@ -94,15 +98,10 @@ def load_mesh_scene(
         raise InputError(f"{path}: no such mesh file (expected a {', '.join(MESH_SUFFIXES)} file)")
     if path.suffix.lower() not in MESH_SUFFIXES:
         raise InputError(f"{path}: unsupported mesh format {path.suffix!r} (expected {', '.join(MESH_SUFFIXES)})")
-    decoded = with_decoded_textures(path)
-    try:
-        if decoded is None:
-            scene = trimesh.load(path, force="scene")
-        else:
-            data, file_type = decoded
-            scene = trimesh.load(io.BytesIO(data), file_type=file_type, force="scene", resolver=trimesh.resolvers.FilePathResolver(path))
-    except Exception as exc:  # noqa: BLE001 - any loader failure is a bad file, reported in one line
-        raise InputError(f"{path}: cannot read a triangle mesh ({_one_line(exc)})") from None
+    if path.suffix.lower() == ".ply":
+        scene = read_ply(path)
+    else:
+        scene = _load_with_trimesh(path)
     if not any(isinstance(g, trimesh.Trimesh) and len(g.faces) for g in scene.geometry.values()):
         raise InputError(f"{path}: cannot read a triangle mesh (the file has no triangles)")
     _add_hm3d_semantics(scene, path)
@@ -114,6 +113,20 @@ def load_mesh_scene(
         except InputError as exc:
             raise InputError(f"{path}: {exc}") from None
     return scene, read_sidecar(sidecar_path(path), list(scene.geometry))
+
+
+def _load_with_trimesh(path: Path) -> trimesh.Scene:
+    """A GLB/glTF or OBJ file as trimesh reads it, its Basis Universal textures decoded."""
+    decoded = with_decoded_textures(path)
+    try:
+        if decoded is None:
+            scene = trimesh.load(path, force="scene")
+        else:
+            data, file_type = decoded
+            scene = trimesh.load(io.BytesIO(data), file_type=file_type, force="scene", resolver=trimesh.resolvers.FilePathResolver(path))
+    except Exception as exc:  # noqa: BLE001 - any loader failure is a bad file, reported in one line
+        raise InputError(f"{path}: cannot read a triangle mesh ({_one_line(exc)})") from None
+    return scene
 
 
 def _add_hm3d_semantics(scene: trimesh.Scene, path: Path) -> None:

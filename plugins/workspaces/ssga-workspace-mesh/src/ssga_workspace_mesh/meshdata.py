@@ -54,7 +54,8 @@ class FlatMesh:
         normals: ``(F, 3)`` float32 unit face normals (zero for degenerate faces),
             oriented as the file's winding says (flipped back under mirroring transforms).
         corner_rgb: ``(F, 3, 3)`` float32 base colour in ``[0, 1]`` at each corner:
-            vertex or face colours, or the material's colour (multiplied with the texture).
+            vertex or face colours, or the material's colour (times glTF's COLOR_0 where a
+            file has both; multiplied with the texture).
         corner_uv: ``(F, 3, 2)`` float32 texture coordinates, trimesh's convention
             (``v`` up, origin at the image's bottom-left); zeros where untextured.
         texture: ``(F,)`` int32 index into ``textures``, ``-1`` for none.
@@ -231,7 +232,11 @@ def _appearance(
             factor = np.ones(3, np.float32) if image is not None else _rgb01(material.diffuse)
         else:
             image, factor = None, _rgb01(getattr(material, "main_color", trimesh.visual.color.DEFAULT_COLOR))
-        rgb = np.broadcast_to(factor, (n, 3, 3)).astype(np.float32)
+        colours = _vertex_attribute_rgb01(visual, len(geom.vertices))
+        if colours is not None:  # glTF: and x COLOR_0, which trimesh keeps aside when there is a material
+            rgb = (colours[faces] * factor).astype(np.float32)
+        else:
+            rgb = np.broadcast_to(factor, (n, 3, 3)).astype(np.float32)
         if image is None or visual.uv is None or len(visual.uv) < len(geom.vertices):
             return rgb, uv, NO_TEXTURE
         uv[:] = np.asarray(visual.uv, dtype=np.float32)[faces]
@@ -245,6 +250,21 @@ def _appearance(
     else:  # face colours, or trimesh's default grey when the mesh has none
         rgb = np.repeat(_rgb01(visual.face_colors)[:, None, :], 3, axis=1)
     return rgb.astype(np.float32), uv, NO_TEXTURE
+
+
+def _vertex_attribute_rgb01(visual: trimesh.visual.TextureVisuals, num_vertices: int) -> np.ndarray | None:
+    """``(V, 3)`` float ``[0, 1]`` RGB of glTF's COLOR_0 as trimesh keeps it beside a material
+    (as stored: float, normalised 8- or 16-bit), or None without one."""
+    raw = (getattr(visual, "vertex_attributes", None) or {}).get("color")
+    if raw is None or len(raw) != num_vertices:
+        return None
+    raw = np.asarray(raw)
+    if raw.ndim != 2 or raw.shape[1] < 3:
+        return None
+    if raw.dtype.kind == "f":
+        return np.clip(raw[:, :3], 0.0, 1.0).astype(np.float32)
+    scale = 65535.0 if raw.dtype.itemsize == 2 else 255.0
+    return (raw[:, :3] / scale).astype(np.float32)
 
 
 class RayCaster:

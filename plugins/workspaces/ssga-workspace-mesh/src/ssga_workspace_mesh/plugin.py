@@ -1,4 +1,4 @@
-"""The ``mesh`` workspace source: any GLB/glTF or OBJ scene, rendered by ray casting.
+"""The ``mesh`` workspace source: any GLB/glTF, OBJ or PLY scene, rendered by ray casting.
 
 trimesh, Embree and OpenCV are imported in :meth:`MeshWorkspaceSource.open`, not
 here, so that discovering plugins (``ssga plugins``, config validation) does not pay
@@ -26,7 +26,10 @@ if TYPE_CHECKING:
 class MeshConfig(StageConfig):
     """Which mesh file, how to read it, and the camera its views are taken with."""
 
-    path: Path = Field(description="The mesh file: .glb, .gltf or .obj (with its .mtl and textures beside it); relative to the config file.")
+    path: Path = Field(
+        description="The mesh file: .glb, .gltf, .obj (with its .mtl and textures beside it) or .ply (a scan; its TextureFile "
+        "beside it, if any); relative to the config file."
+    )
     up_axis: Literal["y", "z", "auto"] | tuple[float, float, float] = Field(
         default="y",
         description="The file's up: 'y' for glTF/Habitat/HM3D files, 'z' for files already in ssga's frame, 'auto' to find it "
@@ -42,7 +45,11 @@ class MeshConfig(StageConfig):
     height: int = Field(default=256, gt=0, le=4096, description="Image height, pixels.")
     hfov_deg: float = Field(default=90.0, gt=0.0, lt=180.0, description="Horizontal field of view, degrees.")
     camera_height: float = Field(
-        default=1.5, gt=0.0, description="Camera height above the floor, metres: where the protocol's viewpoints stand, and the floor plan's cut."
+        default=1.5,
+        gt=0.0,
+        description="Camera height above the floor, metres: where the protocol's viewpoints stand, and the floor plan's cut. "
+        "Where a derived floor plan finds no geometry there (a scan whose walls end lower, as ScanNet's do near 1.4 m), "
+        "0.8 x the height the walls reach is used instead, and a line says so.",
     )
     shading: bool = Field(default=True, description="Shade surfaces by their angle to a fixed light, so flat walls read.")
 
@@ -67,6 +74,7 @@ class MeshWorkspace:
     floor_plan: FloorPlan
     renderer: MeshRenderer
     camera_height: float = 1.5
+    """Where views are taken: the configured height, or lower where the scan ends below it (:func:`.floorplan.floor_plan_for_scan`)."""
     levelling: Levelling | None = None
     """How the mesh was levelled (``up_axis = "auto"`` or a vector), else None."""
 
@@ -88,13 +96,13 @@ class MeshWorkspaceSource(WorkspaceSource):
         assert isinstance(config, MeshConfig)
         problems = []
         if not config.path.is_file():
-            problems.append(f"path: no such mesh file {config.path} (expected a .glb, .gltf or .obj file)")
+            problems.append(f"path: no such mesh file {config.path} (expected a .glb, .gltf, .obj or .ply file)")
         if config.floor_plan is not None and not config.floor_plan.is_file():
             problems.append(f"floor_plan: no such file {config.floor_plan}")
         return problems
 
     def open(self) -> Workspace:
-        from ssga_workspace_mesh.floorplan import floor_plan_from_mesh, load_floor_plan
+        from ssga_workspace_mesh.floorplan import floor_plan_for_scan, load_floor_plan
         from ssga_workspace_mesh.gravity import Levelling
         from ssga_workspace_mesh.loading import floor_plan_path, load_mesh_scene
         from ssga_workspace_mesh.renderer import MeshRenderer
@@ -109,14 +117,15 @@ class MeshWorkspaceSource(WorkspaceSource):
             print(f"{config.path}: {levelling.describe()}", file=sys.stderr)
         camera = Camera(width=config.width, height=config.height, hfov_deg=config.hfov_deg)
         plan_file = config.floor_plan or floor_plan_path(config.path)
+        height = config.camera_height
         if config.floor_plan or plan_file.exists():
             plan = load_floor_plan(plan_file)
         else:
-            plan = floor_plan_from_mesh(scene, camera_height=config.camera_height, source=str(config.path))
+            plan, height, note = floor_plan_for_scan(scene, config.camera_height, source=str(config.path))
+            if note:
+                print(note, file=sys.stderr)
         renderer = MeshRenderer(scene, camera, ids=ids, shading=config.shading)
-        return MeshWorkspace(
-            name=scene_name(config.path), camera=camera, floor_plan=plan, renderer=renderer, camera_height=config.camera_height, levelling=levelling
-        )
+        return MeshWorkspace(name=scene_name(config.path), camera=camera, floor_plan=plan, renderer=renderer, camera_height=height, levelling=levelling)
 
 
 def scene_name(path: Path) -> str:
