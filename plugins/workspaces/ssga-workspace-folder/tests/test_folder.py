@@ -13,25 +13,6 @@ from ssga_workspace_folder.plugin import FolderConfig, FolderWorkspaceSource
 
 from ssga_core import InputError, Pose
 from ssga_bench import ProtocolConfig, build_dataset, depth_to_png16, write_json, write_png
-from ssga_bench.testing import WallWorkspaceSource
-
-
-def make_folder(root, n=400, seed=0):
-    """Captures at random free poses of the stand-in wall room, with depth."""
-    wall = WallWorkspaceSource().open()
-    rng = np.random.default_rng(seed)
-    rows = []
-    (root / "images").mkdir(parents=True)
-    for k in range(n):
-        x, y = rng.uniform(-4, 4, size=2)
-        pose = Pose(float(x), float(y), float(rng.uniform(-math.pi, math.pi)))
-        view = wall.render(pose)
-        write_png(root / "images" / f"{k:04d}.png", view.rgb)
-        write_png(root / "images" / f"{k:04d}-depth.png", depth_to_png16(view.depth))
-        rows.append({"rgb": f"images/{k:04d}.png", "depth": f"images/{k:04d}-depth.png", "x": pose.x, "y": pose.y, "yaw": pose.yaw})
-    (root / "captures.jsonl").write_text("".join(json.dumps(r) + "\n" for r in rows))
-    write_json(root / "floorplan.json", wall.floor_plan.to_json())
-    return rows
 
 
 def open_folder(root, **kw):
@@ -42,7 +23,7 @@ def test_is_installed(ssga_installed_registry):
     assert ssga_installed_registry.entry("workspace", "folder").plugin.distribution == "ssga-workspace-folder"
 
 
-def test_the_protocol_selects_training_and_test_views_among_captures(tmp_path):
+def test_the_protocol_selects_training_and_test_views_among_captures(make_folder, tmp_path):
     rows = make_folder(tmp_path / "scene")
     ws = open_folder(tmp_path / "scene")
     assert (ws.camera.width, ws.camera.height, ws.camera.focal_px) == (256, 256, pytest.approx(128.0))
@@ -60,7 +41,7 @@ def test_the_protocol_selects_training_and_test_views_among_captures(tmp_path):
         ds.view(targets[0])
 
 
-def test_habitat_poses_and_degrees(tmp_path):
+def test_habitat_poses_and_degrees(make_folder, tmp_path):
     make_folder(tmp_path, n=1)
     row = {"rgb": "images/0000.png", "position": [1.0, 1.5, -2.0], "rotation": [1.0, 0.0, 0.0, 0.0]}
     (tmp_path / "captures.jsonl").write_text(json.dumps(row) + "\n" + json.dumps({"rgb": "images/0000.png", "x": 0, "y": 0, "yaw": 90}) + "\n")
@@ -72,12 +53,12 @@ def test_habitat_poses_and_degrees(tmp_path):
 @pytest.mark.parametrize(
     ("line", "message"),
     [
-        ({"rgb": "images/missing.png", "x": 0, "y": 0, "yaw": 0}, r"captures.jsonl:2: rgb image .*missing.png does not exist"),
-        ({"rgb": "images/0000.png", "x": 0, "yaw": 0}, r"captures.jsonl:2: expected rgb and a pose"),
-        ({"x": 0, "y": 0, "yaw": 0}, r"captures.jsonl:2: no rgb image named"),
+        ({"rgb": "images/missing.png", "x": 0, "y": 0, "yaw": 0}, r"captures.jsonl:2: rgb: image .*missing.png does not exist"),
+        ({"rgb": "images/0000.png", "x": 0, "yaw": 0}, r"captures.jsonl:2: pose: no y: expected x, y, yaw"),
+        ({"x": 0, "y": 0, "yaw": 0}, r"captures.jsonl:2: rgb: no image named"),
     ],
 )
-def test_bad_capture_lines_name_the_line(tmp_path, line, message):
+def test_bad_capture_lines_name_the_line(make_folder, tmp_path, line, message):
     make_folder(tmp_path, n=1)
     with (tmp_path / "captures.jsonl").open("a") as f:
         f.write(json.dumps(line) + "\n")
@@ -85,7 +66,7 @@ def test_bad_capture_lines_name_the_line(tmp_path, line, message):
         open_folder(tmp_path)
 
 
-def test_a_pose_outside_the_plan_is_named(tmp_path):
+def test_a_pose_outside_the_plan_is_named(make_folder, tmp_path):
     make_folder(tmp_path, n=30)
     with (tmp_path / "captures.jsonl").open("a") as f:
         f.write(json.dumps({"rgb": "images/0000.png", "x": 40.0, "y": 0.0, "yaw": 0.0}) + "\n")
@@ -94,12 +75,15 @@ def test_a_pose_outside_the_plan_is_named(tmp_path):
         build_dataset(ws, tmp_path / "ds", source={"name": "folder"}, protocol=ProtocolConfig(cells=1))
 
 
-def test_broken_files_are_named(tmp_path):
+def test_broken_files_are_named(make_folder, tmp_path):
     make_folder(tmp_path, n=2)
-    (tmp_path / "images" / "0001.png").write_bytes(b"broken")
     ws = open_folder(tmp_path)
-    with pytest.raises(InputError, match=r"0001.png: not a readable image"):
-        ws.load(1)
+    (tmp_path / "images" / "0001.png").write_bytes(b"broken")
+    with pytest.raises(InputError, match=r"captures.jsonl:2: .*0001.png: not a readable image"):
+        ws.load(1)  # broken after the workspace opened
+    with pytest.raises(InputError, match=r"captures.jsonl:2: rgb: .*0001.png: not a readable image"):
+        open_folder(tmp_path)  # broken before: refused when it opens
+    (tmp_path / "images" / "0001.png").write_bytes((tmp_path / "images" / "0000.png").read_bytes())
     (tmp_path / "floorplan.json").write_text('{"free": 3}')
     with pytest.raises(InputError, match=r"floorplan.json: .free. must be a list of polygons"):
         open_folder(tmp_path)
@@ -107,7 +91,7 @@ def test_broken_files_are_named(tmp_path):
         open_folder(tmp_path / "nope")
 
 
-def test_a_relative_folder_follows_the_config_file_in_every_command(tmp_path, monkeypatch):
+def test_a_relative_folder_follows_the_config_file_in_every_command(make_folder, tmp_path, monkeypatch):
     """`path = "caps"` in cfgdir/exp.toml means cfgdir/caps for `config validate`, `workspace build` and `run` alike."""
     from typer.testing import CliRunner
 
@@ -132,7 +116,7 @@ def test_a_relative_folder_follows_the_config_file_in_every_command(tmp_path, mo
     assert (elsewhere / "out" / "report.md").exists()  # `output` is relative to where ssga runs
 
 
-def test_captures_without_depth_refuse_a_depth_warp_before_anything_runs(tmp_path, ssga_installed_registry):
+def test_captures_without_depth_refuse_a_depth_warp_before_anything_runs(make_folder, tmp_path, ssga_installed_registry):
     """RGB-only captures: `config validate` names the variant and what it lacks; RGB-only variants pass."""
     from ssga_core import ConfigError, Data
     from ssga_bench import validate_experiment
@@ -227,7 +211,7 @@ def test_a_hand_drawn_floor_plan_wins(room_captures, tmp_path, capsys):
     assert "derived" not in capsys.readouterr().err
 
 
-def test_config_validate_names_what_is_missing_before_anything_runs(tmp_path, ssga_installed_registry):
+def test_config_validate_names_what_is_missing_before_anything_runs(make_folder, tmp_path, ssga_installed_registry):
     from ssga_core import ConfigError
     from ssga_bench import validate_experiment
 
@@ -250,7 +234,7 @@ def test_config_validate_names_what_is_missing_before_anything_runs(tmp_path, ss
         validate_experiment({**base, "workspace": {"name": "folder", "path": str(tmp_path / "nowhere")}}, ssga_installed_registry)
 
 
-def test_large_captures_are_read_reduced_with_their_depth(tmp_path, capsys):
+def test_large_captures_are_read_reduced_with_their_depth(make_folder, tmp_path, capsys):
     import cv2
 
     rows = make_folder(tmp_path, n=3)

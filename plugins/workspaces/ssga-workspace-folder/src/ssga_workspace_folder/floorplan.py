@@ -7,7 +7,8 @@ Two kinds of evidence, on a grid of ``resolution`` (10 cm) over the floor plane:
   that follow each other in the file less than ``max_step`` apart (a robot's
   trajectory, recorded in order).
 * **What the cameras saw** (captures with depth): each depth map is back-projected
-  into the world (every ``stride``-th pixel, up to ``max_depth``). Points on the floor
+  into the world (every ``stride``-th pixel, up to ``max_depth``) with its camera's pose,
+  pitched and rolled as it was where a sequence gives 6-DoF poses. Points on the floor
   (``|z| <= floor_tolerance``) mark cells as seen-free floor; points above it and no
   higher than the camera plus ``band`` are obstacles, and no cell within ``clearance``
   of one is free; points within ``band`` of the camera's height (walls, tall furniture)
@@ -51,6 +52,7 @@ def floor_plan_from_captures(
     camera: Camera,
     depths: Iterable[np.ndarray | None],
     *,
+    transforms: Sequence[np.ndarray] | None = None,
     resolution: float = 0.1,
     robot_radius: float = 0.3,
     clearance: float = 0.25,
@@ -68,41 +70,86 @@ def floor_plan_from_captures(
         poses: every capture's pose, in the file's order.
         camera: the captures' camera.
         depths: each capture's planar depth in metres (``0`` or non-finite: unknown), or None.
+        transforms: each capture's ``4 x 4`` camera-to-world transform where the camera is
+            pitched or rolled (its depth is put back into the world with it); default: the poses'.
 
     Raises:
         InputError: no capture, or a depth map of another shape than the camera's; naming ``source``.
     """
     if not poses:
         raise InputError(f"{source}: no capture poses to derive a floor plan from")
-    xy = np.array([[p.x, p.y] for p in poses], dtype=np.float64)
-    swept = _swept(xy, robot_radius, max_step)
-    camera_height = float(np.median([p.height for p in poses]))
-    floor_points, obstacle_points, occluder_points = [], [], []
-    views = 0
-    for k, (pose, depth) in enumerate(zip(poses, depths, strict=True)):
-        if depth is None:
-            continue
-        if depth.shape != camera.shape:
-            raise InputError(f"{source}: capture {k}'s depth is {depth.shape[1]}x{depth.shape[0]}, its image {camera.width}x{camera.height}")
-        points = _world_points(pose, camera, depth, stride, max_depth)
-        views += 1
-        z = points[:, 2]
-        floor_points.append(points[np.abs(z) <= floor_tolerance, :2])
-        obstacle_points.append(points[(z > floor_tolerance) & (z <= pose.height + band), :2])
-        occluder_points.append(points[np.abs(z - camera_height) <= band, :2])
-    if not views:
-        return DerivedPlan(FloorPlan(free=swept, occluders=shapely.Polygon()), len(poses), 0)
+    evidence = FloorEvidence(
+        camera, float(np.median([p.height for p in poses])), max_depth=max_depth, floor_tolerance=floor_tolerance, band=band, stride=stride, source=source
+    )
+    transforms = transforms if transforms is not None else [p.world_from_camera() for p in poses]
+    for k, (pose, transform, depth) in enumerate(zip(poses, transforms, depths, strict=True)):
+        evidence.add(k, transform, pose.height, depth)
+    return evidence.plan(poses, resolution=resolution, robot_radius=robot_radius, clearance=clearance, max_step=max_step, min_hits=min_hits)
 
-    grid = _Grid.covering(np.concatenate([xy, *floor_points, *obstacle_points]), resolution, margin=robot_radius + clearance)
-    seen_floor = grid.polygons(grid.hits(floor_points) >= min_hits)
-    # Close the gaps between the sampled pixels' footprints far from the camera (a cell or two).
-    seen_floor = seen_floor.buffer(resolution, join_style="mitre").buffer(-resolution, join_style="mitre")
-    obstacles = grid.polygons(grid.hits(obstacle_points) >= min_hits)
-    occluders = grid.polygons(grid.hits(occluder_points) >= min_hits).difference(swept)
-    free = shapely.union(seen_floor.difference(obstacles.buffer(clearance)), swept)
-    # Staircase outlines simplified to the grid's own precision: fewer edges for every visibility ray to test.
-    occluders = occluders.simplify(resolution / 2.0)
-    return DerivedPlan(FloorPlan(free=_polygonal(free), occluders=_polygonal(occluders)), len(poses), views)
+
+class FloorEvidence:
+    """What the depth of the captures saw, gathered one capture at a time (so each depth map
+    is read once, when it is checked), then made a plan of with the poses kept."""
+
+    def __init__(
+        self,
+        camera: Camera,
+        camera_height: float,
+        *,
+        max_depth: float = 6.0,
+        floor_tolerance: float = 0.1,
+        band: float = 0.3,
+        stride: int = 4,
+        source: str = "captures",
+    ) -> None:
+        self.camera, self.camera_height = camera, camera_height
+        self.max_depth, self.floor_tolerance, self.band, self.stride, self.source = max_depth, floor_tolerance, band, stride, source
+        self.floor_points: list[np.ndarray] = []
+        self.obstacle_points: list[np.ndarray] = []
+        self.occluder_points: list[np.ndarray] = []
+        self.views = 0
+
+    def add(self, k: int, transform: np.ndarray, height: float, depth: np.ndarray | None) -> None:
+        """Capture ``k``'s depth (planar, metres, on the camera's grid) seen from ``transform`` (camera to world)."""
+        if depth is None:
+            return
+        camera = self.camera
+        if depth.shape != camera.shape:
+            raise InputError(f"{self.source}: capture {k}'s depth is {depth.shape[1]}x{depth.shape[0]}, its image {camera.width}x{camera.height}")
+        points = _world_points(transform, camera, depth, self.stride, self.max_depth)
+        self.views += 1
+        z = points[:, 2]
+        self.floor_points.append(points[np.abs(z) <= self.floor_tolerance, :2])
+        self.obstacle_points.append(points[(z > self.floor_tolerance) & (z <= height + self.band), :2])
+        self.occluder_points.append(points[np.abs(z - self.camera_height) <= self.band, :2])
+
+    def plan(
+        self,
+        poses: Sequence[Pose],
+        *,
+        resolution: float = 0.1,
+        robot_radius: float = 0.3,
+        clearance: float = 0.25,
+        max_step: float = 1.0,
+        min_hits: int = 2,
+    ) -> DerivedPlan:
+        """The floor plan of the captures at ``poses`` (in order) and the depth added."""
+        if not poses:
+            raise InputError(f"{self.source}: no capture poses to derive a floor plan from")
+        xy = np.array([[p.x, p.y] for p in poses], dtype=np.float64)
+        swept = _swept(xy, robot_radius, max_step)
+        if not self.views:
+            return DerivedPlan(FloorPlan(free=swept, occluders=shapely.Polygon()), len(poses), 0)
+        grid = _Grid.covering(np.concatenate([xy, *self.floor_points, *self.obstacle_points]), resolution, margin=robot_radius + clearance)
+        seen_floor = grid.polygons(grid.hits(self.floor_points) >= min_hits)
+        # Close the gaps between the sampled pixels' footprints far from the camera (a cell or two).
+        seen_floor = seen_floor.buffer(resolution, join_style="mitre").buffer(-resolution, join_style="mitre")
+        obstacles = grid.polygons(grid.hits(self.obstacle_points) >= min_hits)
+        occluders = grid.polygons(grid.hits(self.occluder_points) >= min_hits).difference(swept)
+        free = shapely.union(seen_floor.difference(obstacles.buffer(clearance)), swept)
+        # Staircase outlines simplified to the grid's own precision: fewer edges for every visibility ray to test.
+        occluders = occluders.simplify(resolution / 2.0)
+        return DerivedPlan(FloorPlan(free=_polygonal(free), occluders=_polygonal(occluders)), len(poses), self.views)
 
 
 def _swept(xy: np.ndarray, radius: float, max_step: float) -> BaseGeometry:
@@ -113,12 +160,12 @@ def _swept(xy: np.ndarray, radius: float, max_step: float) -> BaseGeometry:
     return shapely.union_all(shapely.buffer(parts, radius, quad_segs=4))
 
 
-def _world_points(pose: Pose, camera: Camera, depth: np.ndarray, stride: int, max_depth: float) -> np.ndarray:
+def _world_points(transform: np.ndarray, camera: Camera, depth: np.ndarray, stride: int, max_depth: float) -> np.ndarray:
     """``(N, 3)`` world points of every ``stride``-th pixel with a depth up to ``max_depth``."""
     uv = camera.pixel_grid()[::stride, ::stride].reshape(-1, 2)
     d = np.asarray(depth, dtype=np.float32)[::stride, ::stride].reshape(-1)
     known = np.isfinite(d) & (d > 0) & (d <= max_depth)
-    return pose.to_world(camera.unproject(d[known], uv[known]))
+    return camera.unproject(d[known], uv[known]) @ transform[:3, :3].T + transform[:3, 3]
 
 
 @dataclass(frozen=True)

@@ -1,36 +1,42 @@
 """Captured images with poses, run through the same benchmark protocol.
 
-The folder holds a ``captures.jsonl`` (one line per image) and, if someone drew one, a
-``floorplan.json`` (:meth:`ssga_bench.workspace.FloorPlan.to_json`); without it the
-floor plan is derived from the captures' poses and depth (:mod:`.floorplan`). See this
-package's README for the format.
+The folder holds a ``captures.jsonl`` (one line per image), ScanNet's exported frames or a
+TUM RGB-D sequence (:mod:`.layouts`), and, if someone drew one, a ``floorplan.json``
+(:meth:`ssga_bench.workspace.FloorPlan.to_json`); without it the floor plan is derived
+from the captures' poses and depth (:mod:`.floorplan`). Every capture is checked before
+the workspace opens (:mod:`.workspace`, :mod:`.checks`). See this package's README for
+the formats.
 """
 
 from __future__ import annotations
 
 import math
-import sys
-from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Literal
 
-import numpy as np
-from pydantic import Field
+from pydantic import Field, field_validator
 
-from ssga_core import Camera, Data, InputError, Pose, SsgaError, StageConfig, View, WorkspaceSource, hookimpl
-from ssga_bench import depth_from_png16, fit_channel, ids_from_png16, read_json, read_jsonl, read_png, read_rgb
-from ssga_bench import FloorPlan
-from ssga_workspace_folder.floorplan import floor_plan_from_captures
+from ssga_core import Data, InputError, SsgaError, StageConfig, WorkspaceSource, hookimpl
+from ssga_bench import read_jsonl
+from ssga_workspace_folder.layouts import Layout, detect, required_files
+from ssga_workspace_folder.workspace import DEFAULT_FLOOR_PLAN, FolderWorkspace, open_folder
 
-
-DEFAULT_FLOOR_PLAN = "floorplan.json"
-"""Looked for in the folder; when it is not there the floor plan is derived. A plan the
-config names explicitly must be there."""
+AXIS_NAMES = ("x", "y", "z", "-x", "-y", "-z")
 
 
 class FolderConfig(StageConfig):
     path: Path = Field(description="The folder holding the captures (and a floor plan, if one was drawn).")
-    captures: str = Field(default="captures.jsonl", description="The captures file, relative to `path`.")
+    layout: Layout = Field(
+        default="auto",
+        description="What the folder holds: 'captures' (captures.jsonl), 'scannet' (color/, depth/, pose/, intrinsic/), 'tum' "
+        "(rgb.txt, depth.txt, groundtruth.txt); 'auto': whichever of these files are there, in that order.",
+    )
+    captures: str = Field(default="captures.jsonl", description="The captures file, relative to `path` (layout 'captures').")
+    skip_bad_frames: bool = Field(
+        default=False,
+        description="Leave out a capture that fails a check (its pose, its images' size, bit depth or depth range) and say how "
+        "many were left out and why, instead of refusing the folder. A sequence's frames with invalid poses are always left out.",
+    )
     floor_plan: str = Field(
         default=DEFAULT_FLOOR_PLAN,
         description="A hand-drawn floor plan, relative to `path`. The default file is used when it is there, else a plan is "
@@ -39,8 +45,35 @@ class FolderConfig(StageConfig):
     derive_floor_plan: bool = Field(
         default=True, description="Without the floor-plan file, derive one from the captures' poses and depth; false requires the file."
     )
-    hfov_deg: float = Field(default=90.0, gt=0.0, lt=180.0, description="Horizontal field of view of the camera, degrees.")
+    hfov_deg: float | None = Field(
+        default=None,
+        gt=0.0,
+        lt=180.0,
+        description="Horizontal field of view of the colour camera, degrees (square pixels, centred). None: 90 for "
+        "captures.jsonl, ScanNet's intrinsic_color.txt, TUM's 525 px focal length at 640 x 480.",
+    )
+    intrinsics: tuple[float, float, float, float] | None = Field(
+        default=None,
+        description="The colour camera's fx, fy, cx, cy in pixels at the images' stored size, where they are not square and "
+        "centred (images are resampled to a camera that is); wins over hfov_deg and the layout's own.",
+    )
     yaw_in_degrees: bool = Field(default=False, description="Read `yaw` in degrees instead of radians.")
+    up_axis: Literal["auto", "x", "y", "z", "-x", "-y", "-z"] | tuple[float, float, float] = Field(
+        default="auto",
+        description="Up in the frame of the 6-DoF poses (camera_to_world rows, ScanNet, TUM): an axis ('z', '-y'), or the "
+        "floor's normal [x, y, z]. 'auto': 'z' for captures.jsonl (ssga's world); for a sequence, found from the depth's "
+        "level surfaces (the cameras' mean up without depth). The world is turned so that up is +z; a line says what was found.",
+    )
+    floor_height: float | None = Field(
+        default=None,
+        description="Where the floor is along up_axis in the 6-DoF poses' frame, metres. None: 0 for captures.jsonl with up z; "
+        "else found from the depth (the lowest level surface below the cameras), 0 without depth.",
+    )
+    depth_scale: float | None = Field(
+        default=None,
+        gt=0.0,
+        description="Units per metre of the 16-bit depth PNGs. None: the layout's (1000, millimetres; TUM 5000).",
+    )
     max_side: int | None = Field(
         default=1024,
         ge=16,
@@ -55,87 +88,22 @@ class FolderConfig(StageConfig):
     clearance: float = Field(default=0.25, ge=0.0, le=5.0, description="Derived floor plan: how far from a seen obstacle a camera may stand, metres.")
     max_depth: float = Field(default=6.0, gt=0.0, le=100.0, description="Derived floor plan: depth beyond this is not used, metres.")
 
+    @field_validator("up_axis", mode="before")
+    @classmethod
+    def _an_axis_or_a_direction(cls, value: object) -> object:
+        if value == "auto" or value in AXIS_NAMES:
+            return value
+        if isinstance(value, (list, tuple)) and len(value) == 3 and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in value):
+            if all(math.isfinite(v) for v in value) and math.hypot(*value) > 1e-9:
+                return tuple(float(v) for v in value)
+        raise ValueError(f"expected 'auto', one of {', '.join(AXIS_NAMES)}, or a non-zero [x, y, z] vector; got {value!r}")
 
-@dataclass(frozen=True)
-class Capture:
-    pose: Pose
-    rgb: Path
-    depth: Path | None = None
-    semantic: Path | None = None
-    instance: Path | None = None
-
-
-def parse_capture(row: dict[str, Any], root: Path, where: str, yaw_in_degrees: bool) -> Capture:
-    """One line of ``captures.jsonl``: files relative to the folder, and an ssga or a Habitat pose."""
-    try:
-        if "position" in row:
-            pose = Pose.from_habitat(np.asarray(row["position"], float), np.asarray(row["rotation"], float))
-        else:
-            yaw = float(row["yaw"])
-            pose = Pose(float(row["x"]), float(row["y"]), math.radians(yaw) if yaw_in_degrees else yaw, float(row.get("height", 1.5)))
-        files = {k: root / row[k] for k in ("rgb", "depth", "semantic", "instance") if row.get(k)}
-    except (KeyError, TypeError, ValueError) as exc:
-        raise InputError(
-            f"{where}: expected rgb and a pose (x, y, yaw[, height]) or a Habitat sensor state (position, rotation), "
-            f"got {sorted(row)} ({type(exc).__name__}: {exc})"
-        ) from None
-    if "rgb" not in files:
-        raise InputError(f"{where}: no rgb image named")
-    for name, path in files.items():
-        if not path.is_file():
-            raise InputError(f"{where}: {name} image {path} does not exist")
-    return Capture(pose=pose, **files)
-
-
-class FolderWorkspace:
-    """A :class:`ssga_bench.workspace.CapturedWorkspace` over the captures of one folder."""
-
-    def __init__(self, name: str, camera: Camera, floor_plan: FloorPlan, captures: list[Capture], max_side: int | None = None) -> None:
-        self.name, self.camera, self.floor_plan = name, camera, floor_plan
-        self._captures = captures
-        self.captures = [c.pose for c in captures]
-        self.max_side = max_side
-
-    def load(self, index: int) -> View:
-        c = self._captures[index]
-        semantic, instance = _single(c.semantic), _single(c.instance)
-        try:
-            rgb, _ = read_rgb(c.rgb, self.max_side)
-            shape = rgb.shape[:2]
-            return View(
-                rgb=rgb,
-                pose=c.pose,
-                camera=self.camera,
-                depth=_fitted(depth_of(c), shape),
-                semantic=None if semantic is None else fit_channel(ids_from_png16(semantic), shape),
-                instance=None if instance is None else fit_channel(ids_from_png16(instance), shape),
-            )
-        except InputError as exc:
-            raise InputError(f"{c.rgb}: {exc}") from None
-
-
-def _fitted(depth: np.ndarray | None, shape: tuple[int, int]) -> np.ndarray | None:
-    return None if depth is None else fit_channel(depth, shape)
-
-
-def depth_of(capture: Capture) -> np.ndarray | None:
-    """A capture's planar depth in metres (``0``: unknown), or None if it has none."""
-    depth = _single(capture.depth)
-    if depth is None:
-        return None
-    return depth.astype(np.float32) if depth.dtype.kind == "f" else depth_from_png16(depth)
-
-
-def _single(path: Path | None) -> np.ndarray | None:
-    """A depth map or id map: 16-bit PNG, or ``.npy`` (depth in metres)."""
-    if path is None:
-        return None
-    if path.suffix == ".npy":
-        try:
-            return np.load(path)
-        except (OSError, ValueError) as exc:
-            raise InputError(f"{path}: not a readable .npy array ({exc})") from None
-    return read_png(path, color=False)
+    @field_validator("intrinsics")
+    @classmethod
+    def _positive_focal_lengths(cls, value: tuple[float, float, float, float] | None) -> object:
+        if value is not None and not (all(math.isfinite(v) for v in value) and value[0] > 0 and value[1] > 0):
+            raise ValueError(f"expected finite [fx, fy, cx, cy] with fx, fy > 0; got {list(value)}")
+        return value
 
 
 class FolderWorkspaceSource(WorkspaceSource):
@@ -148,32 +116,47 @@ class FolderWorkspaceSource(WorkspaceSource):
 
     @classmethod
     def carries(cls, config: StageConfig) -> frozenset[Data]:
-        """RGB, and depth or semantic ids where every capture names such an image (read from the captures file)."""
+        """RGB, and depth or semantic ids where every capture names such an image (read from the captures file); a
+        sequence (ScanNet, TUM) carries RGB and depth."""
         assert isinstance(config, FolderConfig)
+        try:
+            layout = detect(config.path, config.layout, config.captures)
+        except InputError:
+            return cls.produces  # validation reports what is missing, as opening the workspace would
+        if layout != "captures":
+            return frozenset({Data.RGB, Data.DEPTH})
         try:
             rows = list(read_jsonl(config.path / config.captures))  # read_jsonl is lazy: its errors come while reading
         except SsgaError:
-            return cls.produces  # validation reports the file (missing), as opening the workspace would
+            return cls.produces
         rows = [row for row in rows if isinstance(row, dict)]
         extra = {data for data, key in ((Data.DEPTH, "depth"), (Data.SEMANTIC, "semantic")) if rows and all(row.get(key) for row in rows)}
         return frozenset({Data.RGB, *extra})
 
     @classmethod
     def missing(cls, config: StageConfig) -> list[str]:
-        """The folder, the captures file, and a floor plan or captures to derive one from."""
+        """The folder, its layout's files, and a floor plan or captures to derive one from."""
         assert isinstance(config, FolderConfig)
         root = config.path
         if not root.is_dir():
             return [f"path: no such folder {root}"]
-        problems, rows = [], []
-        captures = root / config.captures
         try:
-            rows = list(read_jsonl(captures))
-        except SsgaError as exc:
-            problems.append(f"captures: {exc}")
+            layout = detect(root, config.layout, config.captures)
+        except InputError:
+            layout = "captures"  # nothing there: say what the default layout lacks
+        problems, rows = [], []
+        if layout == "captures":
+            captures = root / config.captures
+            try:
+                rows = list(read_jsonl(captures))
+            except SsgaError as exc:
+                problems.append(f"captures: {exc}")
+            else:
+                if not rows:
+                    problems.append(f"captures: {captures} has no captures")
         else:
-            if not rows:
-                problems.append(f"captures: {captures} has no captures")
+            problems += [f"{key}: no {path} ({layout} layout)" for key, path in required_files(root, layout, config.captures) if not path.exists()]
+            rows = [None] if not problems else []
         plan = root / config.floor_plan
         if not plan.is_file():
             if not config.derive_floor_plan:
@@ -185,38 +168,7 @@ class FolderWorkspaceSource(WorkspaceSource):
         return problems
 
     def open(self) -> FolderWorkspace:
-        config: FolderConfig = self.config  # type: ignore[assignment]
-        root = config.path
-        if not root.is_dir():
-            raise InputError(f"{root}: no such folder (workspace.path)")
-        captures_path = root / config.captures
-        captures = [
-            parse_capture(row, root, f"{captures_path}:{n}", config.yaw_in_degrees) for n, row in enumerate(read_jsonl(captures_path), 1)
-        ]
-        if not captures:
-            raise InputError(f"{captures_path}: no captures")
-        first, original = read_rgb(captures[0].rgb, config.max_side)
-        camera = Camera(width=first.shape[1], height=first.shape[0], hfov_deg=config.hfov_deg)
-        if original:
-            print(f"{root}: captures of {original[0]} x {original[1]} read reduced to {camera.width} x {camera.height} (workspace.max_side)", file=sys.stderr)
-        plan_path = root / config.floor_plan
-        if plan_path.is_file() or not config.derive_floor_plan or config.floor_plan != DEFAULT_FLOOR_PLAN:
-            floor_plan = FloorPlan.from_json(read_json(plan_path), str(plan_path))  # a hand-drawn plan wins
-        else:
-            derived = floor_plan_from_captures(
-                [c.pose for c in captures],
-                camera,
-                (_fitted(depth_of(c), first.shape[:2]) for c in captures),
-                resolution=config.plan_resolution,
-                robot_radius=config.robot_radius,
-                clearance=config.clearance,
-                max_depth=config.max_depth,
-                source=str(captures_path),
-            )
-            # Said before anything runs, so a plan that looks wrong is seen before a build uses it.
-            print(f"{root}: no {config.floor_plan}; {derived.describe()}", file=sys.stderr)
-            floor_plan = derived.plan
-        return FolderWorkspace(root.resolve().name, camera, floor_plan, captures, config.max_side)
+        return open_folder(self.config)  # type: ignore[arg-type]
 
 
 @hookimpl
