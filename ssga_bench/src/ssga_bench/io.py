@@ -6,6 +6,11 @@ would mistake for a finished one. A file that cannot be written (a read-only fol
 a full disk, a path through a file) is an :class:`OutputError` naming the path, with
 nothing left behind; files get the permissions the user's umask gives, as any
 program's do (a temporary file alone would be private, 0600).
+
+The API speaks as the CLI does: a path the file system refuses (too long, through a
+file, not permitted) is a :class:`PathError`, an :class:`~ssga_core.errors.InputError`
+whose message is the line the CLI prints (:func:`path_errors` converts an ``OSError``
+where a library function raises it).
 """
 
 from __future__ import annotations
@@ -17,6 +22,7 @@ import sys
 import tempfile
 import zipfile
 from collections.abc import Iterable, Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -26,8 +32,52 @@ import numpy as np
 from ssga_core.errors import InputError, SsgaError
 
 
-class OutputError(SsgaError, OSError):
+class PathError(InputError, OSError):
+    """A path the file system refuses (too long, through a file, not permitted); the message names it and says why.
+
+    An :class:`InputError`, so the API raises what the CLI reports as one line, and an
+    ``OSError``, so ``except OSError`` still catches it."""
+
+
+class OutputError(PathError):
     """A file or folder ssga cannot write; the message names it and says why."""
+
+
+def path_error(exc: OSError) -> PathError:
+    """``exc`` as the one line the CLI prints for it: ``PATH: why`` (``why`` alone if it names no path)."""
+    why = exc.strerror or str(exc) or type(exc).__name__
+    error = PathError(f"{exc.filename}: {why}" if exc.filename else why)
+    error.errno, error.filename = exc.errno, exc.filename
+    return error
+
+
+@contextmanager
+def path_errors() -> Iterator[None]:
+    """An ``OSError`` raised inside (a path too long, a folder that is a file, a permission
+    refused) as a :class:`PathError` with the CLI's message; ssga's own errors pass as they are.
+    Also a decorator."""
+    try:
+        yield
+    except SsgaError:
+        raise
+    except OSError as exc:
+        raise path_error(exc) from None
+
+
+def is_file(path: str | Path) -> bool:
+    """Whether ``path`` is a file; a path the system cannot look at (too long, through a file) is none."""
+    try:
+        return Path(path).is_file()
+    except OSError:
+        return False
+
+
+def exists(path: str | Path) -> bool:
+    """Whether anything is at ``path``; a path the system cannot look at (too long, through a file) holds nothing."""
+    try:
+        return Path(path).exists()
+    except OSError:
+        return False
 
 
 def warn(message: str) -> None:
@@ -141,7 +191,9 @@ def read_json(path: str | Path) -> Any:
         return json.loads(Path(path).read_text(encoding="utf-8"))
     except FileNotFoundError:
         raise InputError(f"{path}: no such file") from None
-    except (OSError, ValueError) as exc:
+    except OSError as exc:
+        raise InputError(f"{path}: cannot read: {_why(exc)}") from None
+    except ValueError as exc:
         raise InputError(f"{path}: not valid JSON ({exc})") from None
 
 
@@ -150,6 +202,8 @@ def read_jsonl(path: str | Path) -> Iterator[Any]:
         lines = Path(path).read_text(encoding="utf-8").splitlines()
     except FileNotFoundError:
         raise InputError(f"{path}: no such file") from None
+    except (OSError, ValueError) as exc:  # unreadable, or not UTF-8
+        raise InputError(f"{path}: cannot read: {_why(exc) if isinstance(exc, OSError) else exc}") from None
     for n, line in enumerate(lines, 1):
         if line.strip():
             try:
@@ -178,13 +232,82 @@ def read_png(path: str | Path, *, color: bool) -> np.ndarray:
     flags = cv2.IMREAD_COLOR if color else cv2.IMREAD_UNCHANGED
     image = cv2.imread(str(path), flags)
     if image is None:
-        why = "no such file" if not Path(path).exists() else "not a readable image"
+        why = "no such file" if not exists(path) else "not a readable image"
         raise InputError(f"{path}: {why}")
     if color:
         return cv2.cvtColor(image, cv2.COLOR_BGR2RGB)
     if image.ndim != 2:
         raise InputError(f"{path}: expected a single-channel image, got shape {image.shape}")
     return image
+
+
+PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+PNG_END = b"\x00\x00\x00\x00IEND\xaeB`\x82"
+"""The last chunk of every PNG (IEND, empty, with its CRC): a file cut short lacks it."""
+PNG_KINDS = {"rgb": (8, 2), "grey16": (16, 0)}
+"""What :func:`png_bytes` writes: ``(bit depth, colour type)`` of 8-bit RGB and of 16-bit grey."""
+_PNG_CHANNELS = {0: 1, 2: 3, 4: 2, 6: 4}
+
+
+def png_problem(path: str | Path, *, size: tuple[int, int] | None = None, kind: str | None = None, decode: bool = False) -> str | None:
+    """What is wrong with the PNG file at ``path`` (None: nothing), cheaply: its size, its first
+    26 bytes (signature, width, height, bit depth, colour type) and its last 12 (the IEND chunk
+    a file cut short lacks); no pixel is decoded. ``size`` ``(width, height)`` and ``kind``
+    (:data:`PNG_KINDS`) are what it should hold. With ``decode``, every chunk's CRC is checked
+    too and the image data inflated to its full length (a bit flipped inside the file)."""
+    try:
+        fd = os.open(path, os.O_RDONLY)
+    except FileNotFoundError:
+        return "missing"
+    except OSError as exc:
+        return f"cannot read ({_why(exc)})"
+    try:
+        length = os.fstat(fd).st_size
+        if length == 0:
+            return "empty (0 bytes)"
+        head = os.pread(fd, 26, 0)
+        tail = os.pread(fd, 12, max(0, length - 12))
+        data = os.pread(fd, length, 0) if decode else b""
+    except OSError as exc:
+        return f"cannot read ({_why(exc)})"
+    finally:
+        os.close(fd)
+    if len(head) < 26 or head[:8] != PNG_SIGNATURE or head[12:16] != b"IHDR":
+        return "not a PNG"
+    if tail != PNG_END:
+        return f"truncated ({length} bytes, no IEND chunk at its end)"
+    width, height = int.from_bytes(head[16:20], "big"), int.from_bytes(head[20:24], "big")
+    if size is not None and (width, height) != tuple(size):
+        return f"a {width} x {height} image, expected {size[0]} x {size[1]}"
+    if kind is not None and (head[24], head[25]) != PNG_KINDS[kind]:
+        return f"bit depth {head[24]}, colour type {head[25]}; expected bit depth {PNG_KINDS[kind][0]}, colour type {PNG_KINDS[kind][1]}"
+    return _png_data_problem(data, width, height, head[24], head[25]) if decode else None
+
+
+def _png_data_problem(data: bytes, width: int, height: int, depth: int, colour: int) -> str | None:
+    """Every chunk's CRC, and the image data inflated to the length the header gives (non-interlaced)."""
+    import zlib
+
+    at, idat = 8, []
+    while at + 12 <= len(data):
+        n = int.from_bytes(data[at : at + 4], "big")
+        kind, body, crc = data[at + 4 : at + 8], data[at + 8 : at + 8 + n], data[at + 8 + n : at + 12 + n]
+        if len(crc) < 4 or zlib.crc32(kind + body) != int.from_bytes(crc, "big"):
+            return f"damaged: chunk {kind.decode('latin-1')!r} at byte {at} fails its CRC"
+        if kind == b"IDAT":
+            idat.append(body)
+        at += 12 + n
+        if kind == b"IEND":
+            break
+    try:
+        pixels = zlib.decompress(b"".join(idat))
+    except zlib.error as exc:
+        return f"damaged: its image data do not inflate ({exc})"
+    interlaced = data[28] if len(data) > 28 else 0
+    expected = height * (1 + (width * _PNG_CHANNELS.get(colour, 1) * depth + 7) // 8)
+    if not interlaced and len(pixels) != expected:
+        return f"damaged: {len(pixels)} bytes of image data, expected {expected}"
+    return None
 
 
 WORKING_SIDE = 1024
@@ -224,7 +347,7 @@ def read_rgb(path: str | Path, max_side: int | None = None) -> tuple[np.ndarray,
         flags = {8: cv2.IMREAD_REDUCED_COLOR_8, 4: cv2.IMREAD_REDUCED_COLOR_4, 2: cv2.IMREAD_REDUCED_COLOR_2}.get(factor, flags)
     image = cv2.imread(str(path), flags)
     if image is None:
-        why = "no such file" if not Path(path).exists() else "not a readable image"
+        why = "no such file" if not exists(path) else "not a readable image"
         raise InputError(f"{path}: {why}")
     rgb = cv2.cvtColor(image, cv2.COLOR_BGR2RGB)
     del image

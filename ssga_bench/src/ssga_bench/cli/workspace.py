@@ -10,7 +10,7 @@ from pydantic import ValidationError
 
 from ssga_core.cli import command, current_registry
 from ssga_core.config import ResolvedStage, pydantic_problems, resolve_stage
-from ssga_core.errors import ConfigError
+from ssga_core.errors import ConfigError, InputError
 from ssga_bench.cli import AddressOption, ExecutorOption, WorkersOption, execution_options, parse_option, progress_bars
 
 if TYPE_CHECKING:
@@ -45,11 +45,16 @@ def build_cli(
     ] = False,
     out: Annotated[Path | None, typer.Option(metavar="DIR", help="Dataset folder [default: runs/workspaces/<workspace>-<settings hash>].")] = None,
     overwrite: Annotated[bool, typer.Option(help="Replace a dataset built with other settings (only the files ssga wrote).")] = False,
+    decode: Annotated[
+        bool,
+        typer.Option("--decode", help="Over an existing dataset: check every view file's data too (a bit flipped inside), not only its size, header and end, and re-make what is damaged."),
+    ] = False,
     executor: ExecutorOption = None,
     workers: WorkersOption = None,
     address: AddressOption = None,
 ) -> None:
-    """Plan and render a benchmark workspace; an interrupted build resumes where it stopped. With --suggest, only say
+    """Plan and render a benchmark workspace; an interrupted build resumes where it stopped, and over a finished one
+    whatever is missing or damaged is re-made (the same, bit for bit). With --suggest, only say
     which cell size, viewpoint distance and test radius give the wanted cells on it."""
     from ssga_bench.config import load_experiment, packaged_config
     from ssga_bench.dataset import build_workspace
@@ -85,11 +90,13 @@ def build_cli(
         return
     execution = execution_options(base.config.execution, executor, workers, address)
     with progress_bars(transient=False) as bars, open_executor(execution) as runner:
-        dataset = build_workspace(stage, protocol, out=out, overwrite=overwrite, progress=bars, executor=runner, batch=execution.batch)
+        dataset = build_workspace(stage, protocol, out=out, overwrite=overwrite, progress=bars, executor=runner, batch=execution.batch, decode=decode)
     levels = dataset.plan.level_counts()
+    n = len(dataset.remade)
+    remade = f"; re-made {n} damaged or missing file{'s' if n != 1 else ''}" if n else ""
     typer.echo(
         f"{dataset.root}: {dataset.num_classes} classes, {len(dataset.split('train'))} real training views, "
-        f"{len(dataset.split('test'))} test views (L1 {levels[1]}, L2 {levels[2]}, L3 {levels[3]})"
+        f"{len(dataset.split('test'))} test views (L1 {levels[1]}, L2 {levels[2]}, L3 {levels[3]}){remade}"
     )
 
 
@@ -153,7 +160,26 @@ def show_cli(
     typer.echo("\n".join(map(str, paths)))
 
 
+def verify_cli(
+    dataset: Annotated[Path, typer.Argument(metavar="DATASET", help="A dataset folder made by `ssga workspace build`.")],
+    decode: Annotated[
+        bool, typer.Option("--decode", help="Check every view file's chunk CRCs and image data too, not only its size, header and end (slower).")
+    ] = False,
+) -> None:
+    """Check a dataset's files without changing them: each damaged or missing one on a line, exit 1 if any
+    (`ssga workspace build` over the folder, with the config it was built from, re-makes them)."""
+    from ssga_bench.health import check_dataset
+
+    health = check_dataset(dataset, decode=decode)
+    for line in health.lines():
+        typer.echo(line)
+    if not health.healthy:
+        raise InputError(health.summary())
+    typer.echo(health.summary())
+
+
 def register(app: typer.Typer) -> None:
     command(workspace_app, name="build")(build_cli)
     command(workspace_app, name="show")(show_cli)
+    command(workspace_app, name="verify")(verify_cli)
     app.add_typer(workspace_app, name="workspace")
