@@ -77,6 +77,8 @@ class Skips:
     source: str
     total: int = 0
     by_kind: dict[str, list[str]] = field(default_factory=lambda: defaultdict(list))
+    prefix: str = ""
+    """Put before a frame's name in an error (the folder, where the name is a sequence's ``frame 12``)."""
 
     def add(self, where: str, bad: BadFrame) -> None:
         self.by_kind[bad.kind].append(where)
@@ -84,7 +86,7 @@ class Skips:
     def handle(self, where: str, bad: BadFrame, *, skip: bool) -> None:
         """Record ``bad`` if ``skip``, else raise the one-line error naming ``where`` and the field."""
         if not skip:
-            raise InputError(f"{where}: {bad}") from None
+            raise InputError(f"{self.prefix}{where}: {bad}") from None
         self.add(where, bad)
 
     @property

@@ -66,7 +66,8 @@ class Intrinsics:
 
 
 def resample(image: np.ndarray, source: Intrinsics, target: Intrinsics, *, nearest: bool) -> np.ndarray:
-    """``image`` (taken with ``source``) as ``target`` would see it from the same pose; outside: 0."""
+    """``image`` (taken with ``source``) as ``target`` would see it from the same pose; outside it: 0
+    (unknown) for ``nearest`` samples (depth, ids), the nearest edge pixel for colour (no black seam)."""
     import cv2
 
     a, c = source.fx / target.fx, source.fy / target.fy
@@ -77,7 +78,7 @@ def resample(image: np.ndarray, source: Intrinsics, target: Intrinsics, *, neare
         if moved <= SAME_PIXEL:
             return image
     flags = (cv2.INTER_NEAREST if nearest else cv2.INTER_LINEAR) | cv2.WARP_INVERSE_MAP
-    return cv2.warpAffine(image, np.array([[a, 0.0, b], [0.0, c, d]]), (target.width, target.height), flags=flags, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+    return cv2.warpAffine(image, np.array([[a, 0.0, b], [0.0, c, d]]), (target.width, target.height), flags=flags, borderMode=cv2.BORDER_CONSTANT if nearest else cv2.BORDER_REPLICATE, borderValue=0)
 
 
 def read_depth(path: Path, scale: float, name: str = "depth") -> np.ndarray:

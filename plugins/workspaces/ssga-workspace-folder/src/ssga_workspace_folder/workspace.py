@@ -142,7 +142,7 @@ def open_folder(config: FolderConfig) -> FolderWorkspace:
     source = str(root / config.captures) if layout == "captures" else f"{root} ({folder.label})"
     if not folder.frames and not folder.dropped:
         raise InputError(f"{source}: no captures")
-    skips = Skips(source, total=len(folder.frames) + len(folder.dropped))
+    skips = Skips(source, total=len(folder.frames) + len(folder.dropped), prefix="" if layout == "captures" else f"{source}: ")
     for where, bad in folder.dropped:
         skips.add(where, bad)
 
@@ -167,8 +167,8 @@ def open_folder(config: FolderConfig) -> FolderWorkspace:
         print(f"{root}: captures of {original[0]} x {original[1]} read reduced to {camera.width} x {camera.height} (workspace.max_side)", file=sys.stderr)
 
     levelling = _levelling(config, folder, frames, pixels)
-    if levelling is not None:
-        print(f"{source}: {levelling.describe()}", file=sys.stderr)
+    if levelling is not None and not (levelling.how == "given" and levelling.floor == 0.0 and np.allclose(levelling.up, (0.0, 0.0, 1.0))):
+        print(f"{source}: {levelling.describe()}", file=sys.stderr)  # said where the world was turned, moved or found
     candidates = []
     for frame in frames:
         try:
