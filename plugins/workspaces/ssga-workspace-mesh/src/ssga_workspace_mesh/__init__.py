@@ -17,6 +17,8 @@ _EXPORTS = {
     "read_semantic_table": "ssga_workspace_mesh.hm3d",
     "subdivided": "ssga_workspace_mesh.scenes",
     "floor_plan_from_mesh": "ssga_workspace_mesh.floorplan",
+    "floor_plan_for_scan": "ssga_workspace_mesh.floorplan",
+    "read_ply": "ssga_workspace_mesh.ply",
     "load_floor_plan": "ssga_workspace_mesh.floorplan",
     "MeshWorkspace": "ssga_workspace_mesh.plugin",
     "MeshWorkspaceSource": "ssga_workspace_mesh.plugin",
