@@ -273,20 +273,24 @@ def tum(home, truth, tmp_path_factory):
         truth_lines.append(f"{stamp + 0.003:.4f} " + " ".join(f"{v:.6f}" for v in values))
     for name, lines in (("rgb.txt", rgb_lines), ("depth.txt", depth_lines), ("groundtruth.txt", truth_lines)):
         (root / name).write_text("\n".join(lines) + "\n")
-    return root, move[:3, :3] @ np.array([0.0, 0.0, 1.0])
+    up = move[:3, :3] @ np.array([0.0, 0.0, 1.0])
+    return root, up, float(up @ move[:3, 3])  # the floor (z = 0) is up . t along up
 
 
-@pytest.mark.parametrize("up", ["given", "auto"])
+@pytest.mark.parametrize("up", ["given", "auto", "given with the floor"])
 def test_a_tum_sequence_is_associated_levelled_and_read(home, truth, tum, up, capsys):
-    root, true_up = tum
-    ws = open_folder(root, **({"up_axis": [float(v) for v in true_up]} if up == "given" else {}))
+    root, true_up, floor = tum
+    given = {"up_axis": [float(v) for v in true_up]} if up.startswith("given") else {}
+    ws = open_folder(root, **given, **({"floor_height": floor} if up == "given with the floor" else {}))
     err = capsys.readouterr().err
     (skipped,) = [line for line in err.splitlines() if "skipped" in line]
     assert skipped == (
         f"{root} (TUM RGB-D): skipped 3 of {FRAMES} frames: 2 no valid pose within 0.02 s (rgb.txt:8, rgb.txt:11); "
         "1 no depth within 0.02 s (rgb.txt:16); groundtruth.txt: 2 invalid rows passed over (line 8: pose not finite, line 11: pose not rigid)"
     )
-    assert ("up given as" if up == "given" else "up found from the depth's level surfaces") in err
+    assert ("up given as" if up.startswith("given") else "up found from the depth's level surfaces") in err
+    said = re.search(r"floor (given|found) at (-?[\d.]+) m and moved to z = 0", err)
+    assert said and said[1] == ("given" if up == "given with the floor" else "found") and abs(float(said[2]) - floor) < 0.01, err
     kept = [k for k in range(FRAMES) if k not in INVALID_TUM and k != NO_DEPTH]
     check_against_truth(ws, truth, kept)
     assert ws.camera.hfov_deg == pytest.approx(TUM_CAMERA.hfov_deg)
@@ -307,7 +311,7 @@ def test_timestamps_are_associated_as_tums_associate_does():
 
 
 def test_the_layout_is_detected_or_named(scannet, tum, tmp_path):
-    root, _ = tum
+    root, _, _ = tum
     assert FolderWorkspaceSource.carries(FolderConfig(path=root)) == {Data.RGB, Data.DEPTH}
     with pytest.raises(InputError, match=r"no captures.jsonl, no ScanNet frames .* and no TUM RGB-D sequence .*; set workspace.layout"):
         open_folder(tmp_path)
@@ -341,6 +345,9 @@ def test_captures_jsonl_takes_6dof_poses(home, truth, tmp_path):
     for p, t in zip(ws.captures, truth[:6], strict=True):
         assert (p.x, p.y, p.height) == pytest.approx(tuple(t[:3, 3]), abs=1e-6)
         assert p.yaw == pytest.approx(heading(t), abs=1e-6)
+    # Rows levelled with another up cannot stand beside rows already level.
+    with pytest.raises(InputError, match=r"captures.jsonl:1: an x, y, yaw or Habitat pose, already level, among camera_to_world rows"):
+        open_folder(tmp_path, up_axis="-y")
     # A level Habitat state gives what Pose.from_habitat gives.
     row = {"rgb": "images/0.png", "position": [1.0, 1.5, -2.0], "rotation": [math.cos(0.3), 0.0, math.sin(0.3), 0.0]}
     (tmp_path / "captures.jsonl").write_text(json.dumps(row) + "\n")

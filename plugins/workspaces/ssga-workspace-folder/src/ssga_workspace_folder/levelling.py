@@ -69,6 +69,8 @@ class Levelling:
     """Height of the floor after the turn (None: not found, left at 0)."""
     share: float = 0.0
     """Share of the surface seen that faces along up (found from depth)."""
+    floor_given: bool = False
+    """Whether the floor's height was given (the config's, or captures.jsonl's z = 0) rather than found."""
 
     @property
     def rotation(self) -> np.ndarray:
@@ -92,11 +94,10 @@ class Levelling:
             "found from depth": f"up found from the depth's level surfaces ({100 * self.share:.0f}% of those seen): ({x:.3f}, {y:.3f}, {z:.3f})",
             "from the cameras": f"up taken from the cameras' mean up, no depth to refine it: ({x:.3f}, {y:.3f}, {z:.3f})",
         }[self.how]
-        floor = (
-            f"floor found at {self.floor:.3f} m and moved to z = 0"
-            if self.floor is not None
-            else "floor not seen in the depth: heights as the poses give them"
-        )
+        if self.floor is None:
+            floor = "floor not seen in the depth: heights as the poses give them"
+        else:
+            floor = f"floor {'given' if self.floor_given else 'found'} at {self.floor:.3f} m and moved to z = 0"
         return f"{what}, {off:.1f} deg from the poses' {axis} axis; {floor}"
 
 

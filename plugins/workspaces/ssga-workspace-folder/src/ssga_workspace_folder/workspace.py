@@ -166,8 +166,8 @@ def open_folder(config: FolderConfig) -> FolderWorkspace:
     if original:
         print(f"{root}: captures of {original[0]} x {original[1]} read reduced to {camera.width} x {camera.height} (workspace.max_side)", file=sys.stderr)
 
-    levelling = _levelling(config, folder, frames, pixels)
-    if levelling is not None and not (levelling.how == "given" and levelling.floor == 0.0 and np.allclose(levelling.up, (0.0, 0.0, 1.0))):
+    levelling = _levelling(config, folder, frames, pixels, source)
+    if levelling is not None and not (levelling.how == "given" and levelling.floor == 0.0 and np.allclose(levelling.up, (0, 0, 1))):
         print(f"{source}: {levelling.describe()}", file=sys.stderr)  # said where the world was turned, moved or found
     candidates = []
     for frame in frames:
@@ -258,7 +258,7 @@ def _colour_intrinsics(config: FolderConfig, folder: Folder, size: tuple[int, in
     return tum_intrinsics(width, height)
 
 
-def _levelling(config: FolderConfig, folder: Folder, frames: list[Frame], pixels: Pixels) -> Levelling | None:
+def _levelling(config: FolderConfig, folder: Folder, frames: list[Frame], pixels: Pixels, source: str) -> Levelling | None:
     """How the frames' 6-DoF poses are levelled; None if none has one in the file's frame."""
     six = [f for f in frames if isinstance(f.pose, np.ndarray) and not f.levelled]
     if not six:
@@ -276,7 +276,8 @@ def _levelling(config: FolderConfig, folder: Folder, frames: list[Frame], pixels
     seen: list = []
     transforms: list[np.ndarray] = []
     if up is None or not floor_given:
-        for frame in six[:: max(1, len(six) // LEVELLING_SAMPLE)]:
+        for k in np.unique(np.linspace(0, len(six) - 1, min(len(six), LEVELLING_SAMPLE)).round().astype(int)):
+            frame = six[k]
             try:
                 depth = None if frame.depth is None else read_depth(frame.depth, pixels.depth_scale)
             except BadFrame:
@@ -291,10 +292,13 @@ def _levelling(config: FolderConfig, folder: Folder, frames: list[Frame], pixels
     share = 0.0
     if up is None:
         with_depth = [(t, s) for t, s in zip(transforms, seen, strict=True) if s is not None]
-        if with_depth:
-            up, share = find_up([t for t, _ in with_depth], [s for _, s in with_depth])
-        else:
-            up, share = find_up(transforms or [f.pose for f in six], [])  # type: ignore[misc]
+        try:
+            if with_depth:
+                up, share = find_up([t for t, _ in with_depth], [s for _, s in with_depth])
+            else:
+                up, share = find_up(transforms or [f.pose for f in six], [])  # type: ignore[misc]
+        except InputError as exc:
+            raise InputError(f"{source}: {exc}") from None
         how = "found from depth" if share > 0 else "from the cameras"
     rotation = rotation_to_z(up)
     if config.floor_height is not None:
@@ -305,7 +309,7 @@ def _levelling(config: FolderConfig, folder: Folder, frames: list[Frame], pixels
         pairs = [(t, s) for t, s in zip(transforms, seen, strict=True) if s is not None]
         heights = np.array([(rotation @ f.pose[:3, 3])[2] for f in six])  # type: ignore[index]
         floor = find_floor(rotation, [t for t, _ in pairs], [s for _, s in pairs], heights) if pairs else None
-    return Levelling(up=up, how=how, floor=floor, share=share)
+    return Levelling(up=up, how=how, floor=floor, share=share, floor_given=floor_given)
 
 
 def _capture(frame: Frame, levelling: Levelling | None) -> tuple[Capture, Frame]:
