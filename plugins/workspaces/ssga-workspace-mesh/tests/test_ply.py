@@ -289,10 +289,12 @@ BINARY_TRIANGLE = struct.pack("<9f", 0, 0, 0, 1, 0, 0, 0, 1, 0) + struct.pack("<
         (ply_bytes(TRIANGLE + b"3 0 1 2\n", vertex="property float x\nproperty float y\nproperty half z\n"), "unknown property type 'half'"),
         (ply_bytes(TRIANGLE + b"3 0 1 7\n"), "face 0 refers to vertex 7, but the file has 3 vertices (expected indices 0 to 2)"),
         (ply_bytes(TRIANGLE + b"3 0 1 2\n3 0 1", faces=2), "truncated: the file ends in 'face' record 1 of the 2"),
-        (ply_bytes(TRIANGLE + b"3 0 one 2\n"), "expected numbers after the header, found 'one'"),
+        (ply_bytes(TRIANGLE + b"3 0 one 2\n"), "expected numbers separated by spaces after the header, found 'one'"),
         (ply_bytes(BINARY_TRIANGLE[:-6], fmt="binary_little_endian"), "truncated: the file ends in 'face' record 0"),
-        (ply_bytes(BINARY_TRIANGLE[:20], fmt="binary_little_endian"), "truncated: the file ends in 'vertex' record 1 of the 3"),
+        (ply_bytes(BINARY_TRIANGLE[:20], fmt="binary_little_endian"), "truncated: the header declares 3 'vertex' records, the rest of the file has room for at most 1"),
         (ply_bytes(TRIANGLE, faces=0), "no faces (expected a 'face' element"),
+        (ply_bytes(TRIANGLE + b"3 0 1 2\n", faces=10**11), "the header declares 100000000000 'face' records, the rest of the file has room"),
+        (ply_bytes(b"0 0 nan\n1 0 0\n0 1 0\n3 0 1 2\n"), "vertex 0 is at (0, 0, nan) (expected finite coordinates)"),
     ],
 )
 def test_bad_ply_files_are_one_line_input_errors(tmp_path, content, expected):

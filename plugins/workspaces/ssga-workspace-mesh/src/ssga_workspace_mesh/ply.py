@@ -120,9 +120,11 @@ def read_ply(path: str | Path) -> trimesh.Scene:
     except OSError as exc:
         raise InputError(f"{path}: cannot read the file ({exc.strerror or exc})") from None
     try:
-        header = parse_header(data)
-        elements = read_body(data, header)
-        return build_scene(path, header, elements)
+        # Corrupt numbers (NaN cast to an integer type) are caught below, not warned about.
+        with np.errstate(invalid="ignore", over="ignore"):
+            header = parse_header(data)
+            elements = read_body(data, header)
+            return build_scene(path, header, elements)
     except PlyError as exc:
         raise InputError(f"{path}: {exc}") from None
 
@@ -197,6 +199,8 @@ def read_body(data: bytes, header: Header) -> dict[str, Columns]:
 def _read_binary(data: bytes, offset: int, elements: tuple[Element, ...], order: str) -> dict[str, Columns]:
     out: dict[str, Columns] = {}
     for element in elements:
+        smallest = sum(int((p.count or p.code)[1]) for p in element.properties)  # every list empty
+        _room_for(element, (len(data) - offset) // max(smallest, 1))
         read = _binary_uniform(data, offset, element, order)
         if read is None:
             read = _binary_walk(data, offset, element, order)
@@ -206,6 +210,8 @@ def _read_binary(data: bytes, offset: int, elements: tuple[Element, ...], order:
 
 def _binary_uniform(data: bytes, offset: int, element: Element, order: str) -> tuple[Columns, int] | None:
     """The element read in one go, if every record's lists have the lengths of the first's; else None."""
+    if element.count == 0:
+        return _empty(element), offset
     fields: list[tuple] = []
     lengths: dict[int, int] = {}
     at = offset
@@ -214,14 +220,16 @@ def _binary_uniform(data: bytes, offset: int, element: Element, order: str) -> t
             fields.append((f"p{i}", order + prop.code))
             at += int(prop.code[1])
             continue
-        if element.count == 0 or at + int(prop.count[1]) > len(data):
-            return None if element.count else ({}, offset)
+        if at + int(prop.count[1]) > len(data):
+            return None
         length = int(np.frombuffer(data, order + prop.count, 1, at)[0])
         if length == 0:
             return None  # a zero-size field: the walk handles it
         lengths[i] = length
         fields += [(f"n{i}", order + prop.count), (f"p{i}", order + prop.code, (length,))]
         at += int(prop.count[1]) + length * int(prop.code[1])
+        if at > len(data):
+            return None  # not even the first record fits: the walk says where the file ends
     dtype = np.dtype(fields)
     size = element.count * dtype.itemsize
     if offset + size > len(data):
@@ -290,6 +298,14 @@ def _gather(raw: np.ndarray, starts: np.ndarray, dtype: np.dtype) -> np.ndarray:
     return picked.reshape(-1).view(dtype).astype(dtype.newbyteorder("="))
 
 
+def _room_for(element: Element, records: int) -> None:
+    """Refuse an element whose records cannot all fit in what is left of the file (before allocating for them)."""
+    if element.count > records:
+        raise PlyError(
+            f"truncated: the header declares {element.count} {element.name!r} records, the rest of the file has room for at most {records}"
+        )
+
+
 def _truncated(element: Element, record: int) -> PlyError:
     return PlyError(f"truncated: the file ends in {element.name!r} record {record} of the {element.count} its header declares")
 
@@ -304,11 +320,13 @@ def _read_ascii(body: bytes, elements: tuple[Element, ...]) -> dict[str, Columns
         try:
             tokens = np.fromstring(text, sep=" ")  # its text mode: the fast tokenizer (only the binary mode is deprecated)
         except (ValueError, DeprecationWarning):
-            bad = next(word for word in text.split() if not _is_number(word))
-            raise PlyError(f"expected numbers after the header, found {bad[:40]!r}") from None
+            bad = next((word for word in body.split() if not _is_number(word.decode("latin-1"))), None)
+            found = f", found {bad.decode('latin-1')[:40]!r}" if bad is not None else ""
+            raise PlyError(f"expected numbers separated by spaces after the header{found}") from None
     out: dict[str, Columns] = {}
     pos = 0
     for element in elements:
+        _room_for(element, (len(tokens) - pos) // max(len(element.properties), 1))
         read = _ascii_uniform(tokens, pos, element)
         if read is None:
             read = _ascii_walk(tokens, pos, element)
@@ -327,7 +345,7 @@ def _is_number(word: str) -> bool:
 def _ascii_uniform(tokens: np.ndarray, pos: int, element: Element) -> tuple[Columns, int] | None:
     n = element.count
     if n == 0:
-        return {}, pos
+        return _empty(element), pos
     offsets, lengths, width = [], {}, 0
     for i, prop in enumerate(element.properties):
         offsets.append(width)
@@ -389,6 +407,14 @@ def _ascii_walk(tokens: np.ndarray, pos: int, element: Element) -> tuple[Columns
     return columns, pos
 
 
+def _empty(element: Element) -> Columns:
+    """The columns of an element with no records."""
+    return {
+        p.name: np.empty(0, np.dtype(p.code)) if p.count is None else Ragged(np.empty(0, np.dtype(p.code)), np.empty(0, np.int64))
+        for p in element.properties
+    }
+
+
 def _cast(values: np.ndarray, code: str) -> np.ndarray:
     return values.astype(np.dtype(code)) if code[0] != "f" else values.astype(np.dtype(code), copy=False)
 
@@ -402,9 +428,13 @@ def build_scene(path: Path, header: Header, elements: dict[str, Columns]) -> tri
     if not all(isinstance(vertex.get(k), np.ndarray) for k in "xyz"):
         raise PlyError("expected a 'vertex' element with properties x, y and z")
     vertices = np.column_stack([vertex[k] for k in "xyz"]).astype(np.float64)
+    finite = np.isfinite(vertices).all(axis=1)
+    if not finite.all():
+        at = int(np.argmin(finite))
+        raise PlyError(f"vertex {at} is at ({', '.join(f'{v:g}' for v in vertices[at])}) (expected finite coordinates)")
     face = elements.get("face", {})
     name = next((n for n in FACE_LISTS if n in face), None)
-    if name is None or not isinstance(face[name], Ragged):
+    if name is None or not isinstance(face[name], Ragged) or len(face[name].counts) == 0:
         raise PlyError("no faces (expected a 'face' element with a list 'vertex_indices' or 'vertex_index'; point clouds cannot be rendered)")
     polygons: Ragged = face[name]  # type: ignore[assignment]
     _check_indices(polygons, len(vertices))
