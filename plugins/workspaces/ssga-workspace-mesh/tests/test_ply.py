@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import json
 import math
+import pickle
 import struct
 from pathlib import Path
 
@@ -269,6 +270,7 @@ def test_a_scan_with_nothing_at_any_height_names_the_cause(tmp_path):
     message = str(raised.value)
     assert "\n" not in message and "floor.ply" in message and "no geometry at camera height 1.5 m" in message
     assert "up_axis" not in message
+    assert str(pickle.loads(pickle.dumps(raised.value))) == message, "it crosses from worker processes intact"
 
 
 def ply_bytes(body: bytes, vertex: str = "property float x\nproperty float y\nproperty float z\n", fmt: str = "ascii", faces: int = 1) -> bytes:

@@ -66,7 +66,11 @@ class NoFreeFloor(InputError):
 
     def __init__(self, source: str, cause: str, reason: str, wall_top: float | None) -> None:
         super().__init__(f"{source}: found no free floor: {reason}")
-        self.cause, self.reason, self.wall_top = cause, reason, wall_top
+        self.source, self.cause, self.reason, self.wall_top = source, cause, reason, wall_top
+
+    def __reduce__(self) -> tuple[type, tuple[str, str, str, float | None]]:
+        # Raised in worker processes too: rebuilt from its fields, not from its message.
+        return type(self), (self.source, self.cause, self.reason, self.wall_top)
 
 
 def floor_plan_from_mesh(
