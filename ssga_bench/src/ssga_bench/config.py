@@ -36,6 +36,7 @@ from ssga_core.config import REF_TYPES, ResolvedStage, ResolvedVariant, Resolver
 from ssga_core.errors import ConfigError
 from ssga_core.plugins import Registry
 from ssga_bench.execution import ExecutionConfig
+from ssga_bench.io import path_error, path_errors
 from ssga_bench.protocol import ProtocolConfig
 
 WorkspaceRef = REF_TYPES["workspace"]
@@ -222,6 +223,7 @@ def read_experiment(path: str | Path) -> tuple[dict[str, Any], Path]:
     return with_preset(read_toml(path), str(path)), path
 
 
+@path_errors()
 def load_experiment(path: str | Path, registry: Registry) -> Experiment:
     """Read and validate an experiment config file (or a packaged one by name); raise :class:`ConfigError` with every problem."""
     data, path = read_experiment(path)
@@ -261,7 +263,11 @@ def validate_experiment(data: dict[str, Any], registry: Registry, *, source: str
     resolver.problems.extend(packaged.problems)
     resolver.problems.extend(_fusion_problems(config, fuser, also))
     if workspace is not None:
-        resolver.problems.extend(f"workspace.{problem}" for problem in workspace.cls.missing(workspace.config))
+        try:
+            missing = workspace.cls.missing(workspace.config)
+        except OSError as exc:  # a path the system refuses to look at (too long, through a file): the CLI's one line
+            raise path_error(exc) from None
+        resolver.problems.extend(f"workspace.{problem}" for problem in missing)
     variants = resolver.variants(config, available=workspace.cls.carries(workspace.config) if workspace else None)
     resolver.raise_problems(source)
     assert workspace is not None and fuser is not None

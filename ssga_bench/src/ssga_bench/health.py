@@ -22,7 +22,7 @@ from typing import Any
 
 from ssga_core.errors import InputError, SsgaError
 from ssga_bench.dataset import CHANNELS, FITTED, header_problem, plan_from_records
-from ssga_bench.io import exists, png_problem, read_json, read_jsonl
+from ssga_bench.io import exists, path_errors, png_problem, read_json, read_jsonl
 from ssga_bench.protocol import Plan, ProtocolConfig
 from ssga_bench.workspace import FloorPlan
 
@@ -97,10 +97,18 @@ def check_dataset(root: str | Path, *, decode: bool = False) -> DatasetHealth:
             inside a file); default: sizes, headers and ends only (a missing, empty or
             truncated file, one of another size or kind).
     """
+    with path_errors():
+        return _check(Path(root), decode)
+
+
+def _check(root: Path, decode: bool) -> DatasetHealth:
     start = time.perf_counter()
-    root = Path(root)
+    try:
+        root.stat()  # a path the system refuses (too long, through a file): a PathError naming it
+    except FileNotFoundError:
+        raise InputError(f"{root}: no such folder; a dataset is a folder made by `ssga workspace build`") from None
     if not root.is_dir():
-        raise InputError(f"{root}: {'no such folder' if not exists(root) else 'not a folder'}; a dataset is a folder made by `ssga workspace build`")
+        raise InputError(f"{root}: not a folder; a dataset is a folder made by `ssga workspace build`")
     health = DatasetHealth(root, decoded=decode)
     damaged = health.damaged
 

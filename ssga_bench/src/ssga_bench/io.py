@@ -36,7 +36,11 @@ class PathError(InputError, OSError):
     """A path the file system refuses (too long, through a file, not permitted); the message names it and says why.
 
     An :class:`InputError`, so the API raises what the CLI reports as one line, and an
-    ``OSError``, so ``except OSError`` still catches it."""
+    ``OSError``, so ``except OSError`` still catches it (with its ``errno`` and ``filename``
+    where it came from one)."""
+
+    def __str__(self) -> str:
+        return str(self.args[0]) if self.args else ""
 
 
 class OutputError(PathError):

@@ -40,6 +40,7 @@ from pydantic import Field
 
 from ssga_core.errors import CheckpointError, InputError, MissingWeightsError
 from ssga_core.stages import StageConfig
+from ssga_bench.io import is_file
 
 if TYPE_CHECKING:  # torch loads when a network is built, not when a plugin registers (`ssga --help` stays fast)
     import torch
@@ -191,7 +192,7 @@ def find_weights(value: str, packaged: Path | None, who: str, field: str = "weig
     path = Path(value).expanduser()
     candidates = [path] if path.is_absolute() else [*([packaged / path] if packaged else []), Path.cwd() / path]
     for candidate in candidates:
-        if candidate.is_file():
+        if is_file(candidate):  # a path the system cannot look at (too long, through a file) is no file either
             return candidate
     where = " or ".join(str(c) for c in candidates)
     raise MissingWeightsError(f"{who}: config field {field!r} = {value!r}: no such file (looked for {where}); set {field!r} to {expected}")
