@@ -20,7 +20,8 @@ from ssga_bench.config import Experiment, validate_experiment
 from ssga_bench.evaluation import METRIC_TITLES, METRICS, THIN, Report, difference_text, seeds_estimate
 from ssga_bench.execution import open_executor
 from ssga_bench.experiment import Progress, run
-from ssga_bench.io import atomic_write_bytes, writable_folder, write_json
+from ssga_bench.io import atomic_write_bytes, write_json
+from ssga_bench.ownership import BENCH, claim_folder
 from ssga_bench.page import write_bench_page
 
 
@@ -79,7 +80,7 @@ def run_bench(
     # Every seed's experiment is validated before any runs: a seed or test_per_class out of
     # range is an error now, not after the seeds before it have run for hours.
     experiments = {seed: seed_experiment(base, seed, registry, test_per_class) for seed in seeds}
-    out = writable_folder(output or base.config.output)
+    out = claim_folder(output or base.config.output, BENCH)  # replaces only what a bench wrote there (ssga_bench.ownership)
     runs: dict[int, SeedRun] = {}
     # One executor for every seed: workers start once and keep what they opened.
     with open_executor(base.config.execution) as executor:

@@ -50,7 +50,8 @@ from ssga_bench.dataset import Dataset, build_workspace
 from ssga_bench.evaluation import Report
 from ssga_bench.execution import Executor, open_executor
 from ssga_bench.fusion import fuse_variants
-from ssga_bench.io import atomic_write_bytes, load_npz, npy_bytes, npz_bytes, warn, writable_folder, write_json
+from ssga_bench.io import atomic_write_bytes, load_npz, npy_bytes, npz_bytes, warn, write_json
+from ssga_bench.ownership import RUN, claim_folder
 from ssga_bench.oracle import TrueRender
 from ssga_bench.page import write_run_page
 from ssga_bench.run_report import write_report
@@ -252,7 +253,7 @@ def run_experiment(
             return run_experiment(
                 experiment, dataset, out, progress=progress, variant_progress=variant_progress, cache_root=cache_root, executor=own
             )
-    out = writable_folder(out)
+    out = claim_folder(out, RUN)  # replaces only what a run wrote there (ssga_bench.ownership)
     config = experiment.config
     timings = Timings()
     cache = FeatureCache(cache_root if cache_root is not None else out / "cache")
@@ -346,10 +347,11 @@ def run(
         executor: where the work runs (a bench shares one over its seeds); default: the
             one the config's ``[execution]`` names, opened and closed here.
     """
+    # Before anything starts: a folder holding files a run did not write is refused, unchanged.
+    output = claim_folder(output or experiment.config.output, RUN)
     if executor is None:
         with open_executor(experiment.config.execution) as own:
             return run(experiment=experiment, output=output, progress=progress, variant_progress=variant_progress, executor=own)
-    output = writable_folder(output or experiment.config.output)
     timings = Timings()
     with timings.phase("workspace (plan + render)"), timings.wall_phase("workspace (plan + render)"):
         dataset = build_workspace(

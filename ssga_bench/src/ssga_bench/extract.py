@@ -12,7 +12,9 @@ A local descriptor (dense SIFT, Patch-NetVLAD) writes its local features; a regi
 descriptor (a CNN) writes its whole-image feature as one descriptor at the image centre.
 Images are described as they are at 256 x 256; other sizes are resized first, and the
 file's ``resized_from`` attribute of that group records the original ``(W, H)``.
-The file is written whole or not at all.
+The file is written whole or not at all, and replaces only a file ``ssga extract`` wrote
+(one whose ``descriptor`` and ``config`` attributes it set): anything else at ``--out`` is
+refused before any image is described.
 """
 
 from __future__ import annotations
@@ -29,7 +31,7 @@ import cv2
 import numpy as np
 
 from ssga_bench.execution import Executor, SerialExecutor
-from ssga_bench.io import atomic_write_bytes, image_size, read_rgb
+from ssga_bench.io import atomic_write_bytes, exists, image_size, path_errors, read_rgb
 from ssga_bench.tasks import chunks, span
 from ssga_core.config import ResolvedStage
 from ssga_core.data import View
@@ -123,11 +125,32 @@ def extract_features(
         executor: describes the images in chunks of ``batch`` on its workers (default:
             in this process).
     """
+    with path_errors():
+        return _extract_features(images, descriptor, Path(out), progress=progress, executor=executor, batch=batch)
+
+
+def written_by_extract(path: Path) -> bool:
+    """Whether ``path`` is an HDF5 file ``ssga extract`` wrote (its ``descriptor`` and ``config`` attributes)."""
+    import h5py
+
+    try:
+        with h5py.File(path, "r") as h5:
+            return isinstance(h5.attrs.get("descriptor"), str) and isinstance(h5.attrs.get("config"), str)
+    except (OSError, ValueError):
+        return False
+
+
+def _extract_features(
+    images: Sequence[str | Path], descriptor: ResolvedStage, out: Path, *, progress: Callable[[str, int, int], None] | None, executor: Executor | None, batch: int
+) -> dict[str, tuple[int, int]]:
     import h5py  # the only user of HDF5: imported here so `ssga` starts without it
 
     paths = [Path(p) for p in images]
     if not paths:
         raise InputError("ssga extract: no image given")
+    if exists(out) and (out.is_dir() or not written_by_extract(out)):
+        what = "a folder" if out.is_dir() else "not written by ssga extract, which would replace it"
+        raise InputError(f"{out}: {what}; it replaces only the files it wrote: choose another --out (nothing was changed)")
     names = image_names(paths)
     jobs = [ExtractJob(descriptor, tuple(map(str, chunk)), os.getcwd()) for chunk in chunks(paths, batch)]
     buffer = io.BytesIO()

@@ -21,9 +21,10 @@ can be looked at too:
   ``depth.png`` beside it (0: holes).
 
 Every image is read, and checked to carry what the parser consumes, before any is
-parsed, and no output may replace an input, so a broken or misplaced file stops the
-run with its name before work is done and before anything is written. Files are
-written atomically.
+parsed, and no output may replace an input nor a file ``ssga parse`` did not write (a
+``NAME.regions.json`` it wrote says so, and names the picture and label PNG beside it),
+so a broken or misplaced file stops the run with its name before work is done and
+before anything is written. Files are written atomically, the record first.
 """
 
 from __future__ import annotations
@@ -43,10 +44,14 @@ from ssga_bench.io import (
     WORKING_SIDE,
     atomic_write_bytes,
     depth_from_png16,
+    exists,
     fit_channel,
+    is_file,
     ids_from_png16,
     ids_to_png16,
+    path_errors,
     png_bytes,
+    read_json,
     read_png,
     read_rgb,
     writable_folder,
@@ -56,7 +61,7 @@ from ssga_bench.tasks import chunks, span
 from ssga_core.config import ResolvedStage
 from ssga_bench.scene_graph_figure import draw_scene_graph
 from ssga_core.data import VIEW_DATA, Regions, SceneGraph, View
-from ssga_core.errors import InputError
+from ssga_core.errors import InputError, SsgaError
 from ssga_core.geometry import Camera, Pose
 from ssga_core.graph import EDGE_GAP_PX, assemble
 from ssga_core.stages import Parser
@@ -88,8 +93,8 @@ def companion_files(image: Path) -> tuple[dict[str, Path], bool]:
     if image.parent.name == "rgb":
         root = image.parent.parent
         found = {ch: root / ch / image.name for ch in WORKSPACE_CHANNELS}
-        return {ch: path for ch, path in found.items() if path.is_file()}, False
-    if image.name == SYNTHETIC_IMAGE and (image.parent / SYNTHETIC_DEPTH).is_file():
+        return {ch: path for ch, path in found.items() if is_file(path)}, False
+    if image.name == SYNTHETIC_IMAGE and is_file(image.parent / SYNTHETIC_DEPTH):
         return {"depth": image.parent / SYNTHETIC_DEPTH}, True
     return {}, False
 
@@ -106,8 +111,8 @@ def load_view(image: Path, *, companions: bool = True, max_side: int | None = WO
     """``image`` as a view (a 90 degree pinhole at the origin) with its companion channels, its
     longest side at most ``max_side``; the channels read; and the image's own ``(width, height)``
     if it was reduced."""
-    if not image.is_file():  # said here: OpenCV would print a warning of its own before the error
-        raise InputError(f"{image}: {'a folder, expected an image' if image.is_dir() else 'no such file'}")
+    if not is_file(image):  # said here: OpenCV would print a warning of its own before the error
+        raise InputError(f"{image}: {'a folder, expected an image' if exists(image) and image.is_dir() else 'no such file'}")
     rgb, resized_from = read_rgb(image, max_side)
     h, w = rgb.shape[:2]
     files, synthetic = companion_files(image) if companions else ({}, False)
@@ -166,6 +171,19 @@ def output_names(paths: Sequence[Path]) -> list[str]:
             raise InputError(f"{path}: would write the same {stem}.* files as {seen[stem]}; rename one of them or parse them apart")
         seen[stem] = path
     return stems
+
+
+def written_by_parse(out: Path, name: str) -> set[Path]:
+    """The files of image ``NAME`` in ``out`` that ``ssga parse`` wrote: its record (a ``NAME.regions.json``
+    of the shape it writes), and the picture and label PNG that record names."""
+    record_path = out / f"{name}{REGIONS}"
+    try:
+        record = read_json(record_path) if exists(record_path) else None
+    except SsgaError:
+        return set()
+    if not (isinstance(record, dict) and {"parser", "labels_encoding", "edge_rule", "regions"} <= set(record)):
+        return set()
+    return {record_path, *(out / f"{name}{suffix}" for suffix, key in ((PICTURE, "picture"), (LABELS, "labels")) if record.get(key) == Path(f"{name}{suffix}").name)}
 
 
 def check_carries(parser: type[Parser], view: View, image: Path, *, companions: bool) -> None:
@@ -282,10 +300,25 @@ def parse_images(
         max_side: an image whose longest side is larger is parsed reduced to it (read reduced:
             a 12000 x 12000 photo is never decoded whole); ``None``: every image at its own size.
     """
+    with path_errors():
+        return _parse_images(images, parser, Path(out), preset=preset, companions=companions, progress=progress, executor=executor, batch=batch, max_side=max_side)
+
+
+def _parse_images(
+    images: Sequence[str | Path],
+    parser: ResolvedStage,
+    out: Path,
+    *,
+    preset: str | None,
+    companions: bool,
+    progress: Callable[[str, int, int], None] | None,
+    executor: Executor | None,
+    batch: int,
+    max_side: int | None,
+) -> list[ParsedImage]:
     paths = [Path(p) for p in images]
     if not paths:
         raise InputError("ssga parse: no image given")
-    out = Path(out)
     names = output_names(paths)
     inputs = {p.resolve() for p in paths}
     for path in paths:
@@ -294,6 +327,14 @@ def parse_images(
         for suffix in (PICTURE, LABELS, REGIONS):
             if (out / f"{name}{suffix}").resolve() in inputs:
                 raise InputError(f"{out / f'{name}{suffix}'}: is an input; the output of {path} would replace it; choose another --out")
+    for name in names:
+        ours = written_by_parse(out, name)
+        for suffix in (REGIONS, PICTURE, LABELS):
+            if exists(out / f"{name}{suffix}") and out / f"{name}{suffix}" not in ours:
+                raise InputError(
+                    f"{out / f'{name}{suffix}'}: not written by ssga parse, which would replace it; it replaces only the files it wrote: "
+                    "choose another --out (nothing was changed)"
+                )
     for path in paths:
         check_carries(parser.cls, load_view(path, companions=companions, max_side=max_side)[0], path, companions=companions)
     writable_folder(out)
@@ -307,8 +348,8 @@ def parse_images(
         made = (files for chunk in executor.map(parse_chunk, jobs, describe=ParseJob.what) for files in chunk)
         for n, (path, name, files) in enumerate(zip(paths, names, made), 1):
             picture = out / f"{name}{PICTURE}"
+            write_json(out / f"{name}{REGIONS}", files.record)  # first: it says the other two are ssga's
             atomic_write_bytes(out / f"{name}{LABELS}", files.labels)
-            write_json(out / f"{name}{REGIONS}", files.record)
             atomic_write_bytes(picture, files.picture)
             parsed.append(ParsedImage(path, picture, files.regions, files.edges, files.channels, files.resized_from))
             if progress:

@@ -6,7 +6,10 @@ the synthesis had nothing to draw. Writes, into the output folder,
 * ``synthetic.png``: the synthetic view;
 * ``depth.png``: its depth, 16-bit millimetres (0: unknown: holes, and filled holes);
 * ``holes.png``: 255 where no source point landed (what was filled or left black);
-* ``side-by-side.png``: source | synthetic | synthetic with the holes in magenta.
+* ``side-by-side.png``: source | synthetic | synthetic with the holes in magenta;
+* ``synthesis.json``: says ``ssga synthesize`` wrote the folder, before the pictures: a rerun
+  replaces them, and a folder holding such pictures that ssga did not write is refused
+  (:mod:`ssga_bench.ownership`).
 
 The camera is a pinhole of ``hfov_deg`` at the origin looking along +x; the target is
 ``forward`` metres ahead, ``left`` metres to the left, turned ``yaw_deg`` to the left.
@@ -20,7 +23,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from ssga_bench.io import WORKING_SIDE, depth_from_png16, depth_to_png16, fit_channel, read_png, read_rgb, write_png
+from ssga_bench.io import WORKING_SIDE, depth_from_png16, depth_to_png16, fit_channel, path_errors, read_png, read_rgb, write_png
+from ssga_bench.ownership import SYNTHESIS, check_folder, claim_folder
 from ssga_core.data import View
 from ssga_core.errors import InputError
 from ssga_core.geometry import Camera, Pose
@@ -68,7 +72,16 @@ def synthesize_image(
     max_side: int | None = WORKING_SIDE,
 ) -> tuple[int, int] | None:
     """Render ``image`` from the moved camera into ``out``; the image's own ``(width, height)`` if it
-    was read reduced to ``max_side`` (its depth with it, by nearest samples), else ``None``."""
+    was read reduced to ``max_side`` (its depth with it, by nearest samples), else ``None``.
+    ``out`` may not hold a picture of these names that ``ssga synthesize`` did not write."""
+    with path_errors():
+        return _synthesize_image(synthesizer, image, move, Path(out), depth=depth, hfov_deg=hfov_deg, max_side=max_side)
+
+
+def _synthesize_image(
+    synthesizer: Synthesizer, image: str | Path, move: tuple[float, float, float], out: Path, *, depth: str | Path | None, hfov_deg: float, max_side: int | None
+) -> tuple[int, int] | None:
+    check_folder(out, SYNTHESIS)  # said at once, before any work
     rgb, resized_from = read_rgb(image, max_side)
     h, w = rgb.shape[:2]
     view = View(
@@ -79,7 +92,6 @@ def synthesize_image(
     )
     forward, left, yaw = move
     synthesis = synthesizer.synthesize(view, Pose(forward, left, math.radians(yaw)))
-    out = Path(out)
     synthetic = synthesis.view
     drawn = np.zeros((h, w), dtype=bool)
     uv = synthesis.target_uv[synthesis.visible]
@@ -92,6 +104,7 @@ def synthesize_image(
     holes = ~drawn
     marked = synthetic.rgb.copy()
     marked[holes] = HOLE_COLOUR
+    claim_folder(out, SYNTHESIS)  # the marker first: the pictures after it are ssga's
     write_png(out / "synthetic.png", synthetic.rgb)
     write_png(out / "depth.png", depth_to_png16(synthetic.depth if synthetic.depth is not None else np.zeros((h, w), np.float32)))
     write_png(out / "holes.png", holes.astype(np.uint8) * 255)
