@@ -119,6 +119,17 @@ def test_verify_names_each_damaged_file_and_changes_nothing(dataset, stand_ins):
     assert result.exit_code == 1 and snapshot(out) == before
 
 
+def test_verify_says_an_unfinished_build_and_a_folder_that_is_no_dataset(dataset, tmp_path, stand_ins):
+    out, _ = dataset
+    (out / "manifest.jsonl").unlink()
+    line = one_line_error(invoke("workspace", "verify", out), "the build did not finish", f"--out {out}` resumes it")
+    assert "damaged" not in line
+    (tmp_path / "photos").mkdir()
+    (tmp_path / "photos" / "a.jpg").write_bytes(b"jpeg")
+    one_line_error(invoke("workspace", "verify", tmp_path / "photos"), "not an ssga dataset (no dataset.json)")
+    one_line_error(invoke("workspace", "verify", tmp_path / "nothing"), "no such folder")
+
+
 @pytest.mark.parametrize(
     ("accident", "why"),
     [

@@ -21,7 +21,7 @@ from pathlib import Path
 from typing import Any
 
 from ssga_core.errors import InputError, SsgaError
-from ssga_bench.dataset import CHANNELS, FITTED, header_problem, plan_from_records
+from ssga_bench.dataset import CHANNELS, FITTED, RECORDS, header_problem, plan_from_records
 from ssga_bench.io import exists, path_errors, png_problem, read_json, read_jsonl
 from ssga_bench.protocol import Plan, ProtocolConfig
 from ssga_bench.workspace import FloorPlan
@@ -84,9 +84,10 @@ class DatasetHealth:
         how = f"{self.files} files of {self.views} views checked ({'decoded' if self.decoded else 'sizes, headers and ends'}) in {self.seconds:.2f} s"
         if self.healthy:
             return f"{self.root}: healthy: {how}"
+        if not self.damaged:
+            return f"{self.root}: the build did not finish (no manifest.jsonl); `ssga workspace build --config CONFIG --out {self.root}` resumes it"
         unfinished = "" if self.finished else "the build did not finish (no manifest.jsonl); "
-        damaged = f"{damage_line(self.damaged)}; " if self.damaged else ""
-        return f"{self.root}: {unfinished}{damaged}{HEAL.format(root=self.root)}"
+        return f"{self.root}: {unfinished}{damage_line(self.damaged)}; {HEAL.format(root=self.root)}"
 
 
 def check_dataset(root: str | Path, *, decode: bool = False) -> DatasetHealth:
@@ -109,6 +110,8 @@ def _check(root: Path, decode: bool) -> DatasetHealth:
         raise InputError(f"{root}: no such folder; a dataset is a folder made by `ssga workspace build`") from None
     if not root.is_dir():
         raise InputError(f"{root}: not a folder; a dataset is a folder made by `ssga workspace build`")
+    if not any(exists(root / name) for name in RECORDS):
+        raise InputError(f"{root}: not an ssga dataset (no dataset.json); build one with `ssga workspace build`")
     health = DatasetHealth(root, decoded=decode)
     damaged = health.damaged
 
