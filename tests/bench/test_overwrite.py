@@ -249,3 +249,13 @@ def test_synthesize_marks_its_folder_and_replaces_its_own_files(workdir, image):
     assert result.exit_code == 0, result.output
     assert json.loads((out / "synthesis.json").read_text())["written_by"] == "ssga synthesize"
     assert invoke(*args).exit_code == 0
+
+
+def test_bench_refuses_a_seed_folder_it_did_not_write_before_writing_anything(workdir, monkeypatch):
+    monkeypatch.setattr("ssga_bench.bench.run", lambda **kw: pytest.fail("ran a seed"))
+    out = workdir / "out"
+    (out / "seed-1").mkdir(parents=True)
+    (out / "seed-1" / "report.md").write_text("my report")
+    before = snapshot(workdir)
+    refused(invoke("bench", "exp.toml", "--seeds", "0,1", "--output", out), out / "seed-1" / "report.md", "not written by ssga run")
+    assert snapshot(workdir) == before

@@ -21,7 +21,7 @@ from ssga_bench.evaluation import METRIC_TITLES, METRICS, THIN, Report, differen
 from ssga_bench.execution import open_executor
 from ssga_bench.experiment import Progress, run
 from ssga_bench.io import atomic_write_bytes, write_json
-from ssga_bench.ownership import BENCH, claim_folder
+from ssga_bench.ownership import BENCH, RUN, check_folder, claim_folder
 from ssga_bench.page import write_bench_page
 
 
@@ -80,7 +80,11 @@ def run_bench(
     # Every seed's experiment is validated before any runs: a seed or test_per_class out of
     # range is an error now, not after the seeds before it have run for hours.
     experiments = {seed: seed_experiment(base, seed, registry, test_per_class) for seed in seeds}
-    out = claim_folder(output or base.config.output, BENCH)  # replaces only what a bench wrote there (ssga_bench.ownership)
+    # Replaces only what a bench (and each seed's run) wrote there, said before anything is written (ssga_bench.ownership).
+    root = Path(output or base.config.output)
+    for seed in seeds:
+        check_folder(root / f"seed-{seed}", RUN)
+    out = claim_folder(root, BENCH)
     runs: dict[int, SeedRun] = {}
     # One executor for every seed: workers start once and keep what they opened.
     with open_executor(base.config.execution) as executor:
