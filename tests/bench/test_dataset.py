@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from ssga_core import InputError
-from ssga_bench.dataset import Dataset, build_dataset
+from ssga_bench.dataset import Dataset
+from ssga_bench.dataset_build import build_dataset
 from ssga_bench.protocol import ProtocolConfig
 from ssga_bench.testing import WallWorkspaceSource
 

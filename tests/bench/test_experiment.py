@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from ssga_bench.config import TrainingConfig, validate_experiment
-from ssga_bench.dataset import build_dataset
+from ssga_bench.dataset_build import build_dataset
 from ssga_bench.experiment import Timings, Views, run_experiment, training_plan
 from ssga_bench.protocol import Protocol
 from ssga_bench.protocol import ProtocolConfig

@@ -6,7 +6,7 @@ import json
 
 import pytest
 
-from ssga_bench.dataset import build_dataset
+from ssga_bench.dataset_build import build_dataset
 from ssga_bench.protocol import ProtocolConfig
 from ssga_bench.testing import WallWorkspaceSource
 from ssga_core import InputError
@@ -32,7 +32,7 @@ def test_a_protocol_that_does_not_fit_is_fitted_said_and_recorded(tmp_path, caps
     assert record == {"fitted": {changed: value}, "configured": {changed: getattr(protocol, changed)}, "because": str(fixed.value)}
     assert dataset.split("test") and dataset.plan.config.model_dump()[changed] == value
     # Built: reopened as it is, without fitting again.
-    monkeypatch.setattr("ssga_bench.dataset.fit_protocol", lambda *a, **k: pytest.fail("fitted again"))
+    monkeypatch.setattr("ssga_bench.dataset_build.fit_protocol", lambda *a, **k: pytest.fail("fitted again"))
     again = build(tmp_path, "fitted", protocol, fit=True)
     assert again.plan.config.model_dump()[changed] == value and [s.id for s in again.split("test")] == [s.id for s in dataset.split("test")]
 

@@ -21,7 +21,7 @@ from typer.testing import CliRunner
 
 import ssga_bench.io
 from ssga_bench.config import validate_experiment
-from ssga_bench.dataset import build_dataset
+from ssga_bench.dataset_build import build_dataset
 from ssga_bench.experiment import folder_names, run_experiment
 from ssga_bench.io import OutputError, atomic_write_bytes
 from ssga_bench.protocol import ProtocolConfig

@@ -19,7 +19,8 @@ import pytest
 from typer.testing import CliRunner
 
 import ssga_bench.io
-from ssga_bench.dataset import Dataset, build_dataset
+from ssga_bench.dataset import Dataset
+from ssga_bench.dataset_build import build_dataset
 from ssga_bench.health import check_dataset
 from ssga_bench.io import OutputError, png_problem
 from ssga_bench.protocol import ProtocolConfig
@@ -252,7 +253,7 @@ def test_a_dataset_in_a_read_only_folder_says_what_and_how(dataset, stand_ins, m
         return real(path, data)
 
     monkeypatch.setattr("ssga_bench.io.atomic_write_bytes", read_only)
-    monkeypatch.setattr("ssga_bench.dataset.atomic_write_bytes", read_only)
+    monkeypatch.setattr("ssga_bench.dataset_build.atomic_write_bytes", read_only)
     with pytest.raises(InputError) as info:
         build(out)
     message = str(info.value)

@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from ssga_bench.dataset import build_dataset
+from ssga_bench.dataset_build import build_dataset
 from ssga_bench.protocol import ProtocolConfig
 from ssga_bench.testing import WallWorkspaceSource
 from ssga_core.cli import app_with_plugin_commands

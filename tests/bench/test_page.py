@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 
 from ssga_bench.config import validate_experiment
-from ssga_bench.dataset import build_dataset
+from ssga_bench.dataset_build import build_dataset
 from ssga_bench.experiment import run_experiment
 from ssga_bench.page import markdown_html, write_bench_page
 from ssga_bench.protocol import ProtocolConfig

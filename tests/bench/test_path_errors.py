@@ -18,7 +18,7 @@ from pydantic import Field
 from typer.testing import CliRunner
 
 from ssga_bench.config import load_experiment
-from ssga_bench.dataset import build_dataset
+from ssga_bench.dataset_build import build_dataset
 from ssga_bench.health import check_dataset
 from ssga_bench.io import PathError, path_error, path_errors
 from ssga_bench.protocol import ProtocolConfig
@@ -193,7 +193,7 @@ def test_a_workspace_it_may_not_open(workdir, monkeypatch):
     monkeypatch.setattr(ScanSource, "open", denied)
     monkeypatch.setattr(ScanSource, "missing", classmethod(lambda cls, config: []))
     stage = resolve_stage("workspace", {"name": "test-scan", "path": "home.ply"}, plugins.default_registry())
-    from ssga_bench.dataset import build_workspace
+    from ssga_bench.dataset_build import build_workspace
 
     message = api_message(lambda: build_workspace(stage, ProtocolConfig(cells=2, test_per_class=1), out=Path("ws")))
     assert message == "/scans/home.ply: Permission denied"

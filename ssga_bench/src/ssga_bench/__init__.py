@@ -79,8 +79,8 @@ _EXPORTS = {
     "validate_experiment": "ssga_bench.config",
     "ProtocolConfig": "ssga_bench.protocol",
     "Dataset": "ssga_bench.dataset",
-    "build_workspace": "ssga_bench.dataset",
-    "build_dataset": "ssga_bench.dataset",
+    "build_workspace": "ssga_bench.dataset_build",
+    "build_dataset": "ssga_bench.dataset_build",
     "run_experiment": "ssga_bench.experiment",
     "Report": "ssga_bench.evaluation",
 }

@@ -46,7 +46,8 @@ import numpy as np
 
 from ssga_bench.cache import FeatureCache, stage_key
 from ssga_bench.config import Experiment
-from ssga_bench.dataset import Dataset, build_workspace
+from ssga_bench.dataset import Dataset
+from ssga_bench.dataset_build import build_workspace
 from ssga_bench.evaluation import Report
 from ssga_bench.execution import Executor, open_executor
 from ssga_bench.fusion import fuse_variants

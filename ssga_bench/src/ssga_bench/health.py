@@ -10,7 +10,7 @@ depth, colour type) and its last 12 (the IEND chunk that a file cut short lacks)
 
 What is damaged is re-made from the workspace's source by ``ssga workspace build`` over
 the folder (and before ``ssga run`` or ``bench`` start), bit for bit as it was written
-(:func:`ssga_bench.dataset.build_dataset`).
+(:func:`ssga_bench.dataset_build.build_dataset`).
 """
 
 from __future__ import annotations

@@ -169,7 +169,7 @@ class RenderJob:
 
 def render_views(job: RenderJob) -> list[tuple[str, dict[str, bytes]]]:
     """Each view of the chunk rendered (or loaded) and encoded as the dataset's PNG files, by channel."""
-    from ssga_bench.dataset import encode_view
+    from ssga_bench.dataset_build import encode_view
 
     workspace = opened_workspace(job.source)
     out = []

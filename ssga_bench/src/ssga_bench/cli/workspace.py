@@ -57,7 +57,7 @@ def build_cli(
     whatever is missing or damaged is re-made (the same, bit for bit). With --suggest, only say
     which cell size, viewpoint distance and test radius give the wanted cells on it."""
     from ssga_bench.config import load_experiment, packaged_config
-    from ssga_bench.dataset import build_workspace
+    from ssga_bench.dataset_build import build_workspace
     from ssga_bench.execution import open_executor
     from ssga_bench.protocol import ProtocolConfig
 
