@@ -27,7 +27,8 @@ import numpy as np
 import pytest
 import torch
 from ssga_bench.config import TrainingConfig
-from ssga_bench.gcn import GCN, PackedGraphs, torch_threads
+from ssga_bench.gcn import GCN, PackedGraphs
+from ssga_bench.learned import torch_threads
 from ssga_core.geometry import Camera
 from ssga_core.graph import assemble
 from torch import nn

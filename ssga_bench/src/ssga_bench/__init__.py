@@ -27,6 +27,7 @@ _EXPORTS = {
     "RANDOM_WEIGHTS": "ssga_bench.learned",
     "RANDOM_SEED": "ssga_bench.learned",
     "weights_field": "ssga_bench.learned",
+    "torch_threads": "ssga_bench.learned",
     "network_field": "ssga_bench.learned",
     "find_weights": "ssga_bench.learned",
     "load_checkpoint": "ssga_bench.learned",

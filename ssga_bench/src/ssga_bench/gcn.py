@@ -44,8 +44,7 @@ import dataclasses
 import io
 import warnings
 from collections import Counter
-from collections.abc import Callable, Iterator, Sequence
-from contextlib import contextmanager
+from collections.abc import Callable, Sequence
 from functools import cached_property
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -58,6 +57,7 @@ from torch import nn
 from torch.nn import functional as F
 
 from ssga_bench.io import atomic_write_bytes
+from ssga_bench.learned import torch_threads
 
 if TYPE_CHECKING:  # the model takes any config with these fields; it does not depend on the config module
     from ssga_bench.config import TrainingConfig
@@ -343,18 +343,6 @@ def validation_split(
                 quota[c] -= k
             held.extend(members.tolist())
     return np.array(sorted(held), dtype=np.int64)
-
-
-@contextmanager
-def torch_threads(count: int) -> Iterator[None]:
-    """Run torch's intra-op work on ``count`` threads (0: leave torch's setting), restoring it after."""
-    before = torch.get_num_threads()
-    if count:
-        torch.set_num_threads(count)
-    try:
-        yield
-    finally:
-        torch.set_num_threads(before)
 
 
 def train_gcn(

@@ -27,8 +27,7 @@ import functools
 import json
 import os
 import warnings
-from collections.abc import Callable, Iterator, Mapping, Sequence
-from contextlib import contextmanager
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -36,18 +35,8 @@ import numpy as np
 from pydantic import Field
 
 from ssga_bench import (
-    RANDOM_WEIGHTS,
-    Layout,
-    Learned,
-    LearnedConfig,
-    NotFittedError,
-    atomic_write_bytes,
-    checkpoint_bytes,
-    load_checkpoint,
-    load_strict,
-    meta_shapes,
-    read_layout,
-    tensor_state,
+    RANDOM_WEIGHTS, Layout, Learned, LearnedConfig, NotFittedError, atomic_write_bytes, checkpoint_bytes, load_checkpoint,
+    load_strict, meta_shapes, read_layout, tensor_state, torch_threads,
 )
 from ssga_core import CheckpointError, Descriptor, InputError, RegionDescriptor, Regions, View, hookimpl, reciprocal_ranks
 from ssga_descriptor_cnn_rrf.layout import LAYOUTS as CONVOLUTIONS
@@ -457,20 +446,6 @@ class CnnRrf(Learned, RegionDescriptor):
         logits = self.scores(view, self.crops(view, None))[0]
         e = np.exp(logits - logits.max())
         return (e / e.sum()).astype(np.float32)
-
-
-@contextmanager
-def torch_threads(count: int) -> Iterator[None]:
-    """Torch's intra-op threads set to ``count`` (0: left as they are) for the block."""
-    import torch
-
-    before = torch.get_num_threads()
-    if count:
-        torch.set_num_threads(count)
-    try:
-        yield
-    finally:
-        torch.set_num_threads(before)
 
 
 def _parameters(net: torch.nn.Module) -> int:
