@@ -15,6 +15,10 @@ _EXPORTS = {
     "Workspace": "ssga_bench.workspace",
     "CapturedWorkspace": "ssga_bench.workspace",
     "grid_polygons": "ssga_bench.workspace",
+    # levelling a scan or a sequence: up to +z, the floor at z = 0
+    "rotation_to_z": "ssga_bench.levelling",
+    "lowest_level": "ssga_bench.levelling",
+    "weighted_quantiles": "ssga_bench.levelling",
     # the bag-of-words kit of local descriptors (paper §3.1.2)
     "BagOfWords": "ssga_bench.bow",
     "BoWConfig": "ssga_bench.bow",

@@ -28,6 +28,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ssga_core import InputError
+from ssga_bench import lowest_level, rotation_to_z
 from ssga_workspace_folder.images import Intrinsics
 
 AXES = {"x": (1.0, 0.0, 0.0), "y": (0.0, 1.0, 0.0), "z": (0.0, 0.0, 1.0)}
@@ -35,7 +36,6 @@ AXES = {"x": (1.0, 0.0, 0.0), "y": (0.0, 1.0, 0.0), "z": (0.0, 0.0, 1.0)}
 CONES_DEG = (45.0, 20.0, 10.0)
 """Normals within these angles of the current estimate refine it, in turn."""
 
-LEVEL_BIN = 0.02
 FLOOR_SHARE = 0.25
 """The floor: the lowest level below the cameras with this share of the busiest level's upward area."""
 
@@ -183,22 +183,4 @@ def find_floor(rotation: np.ndarray, transforms: Sequence[np.ndarray], seen: Seq
     z, w = z[below], w[below]
     if not z.size:
         return None
-    bins = np.floor((z - z.min()) / LEVEL_BIN).astype(np.int64)
-    per_level = np.convolve(np.bincount(bins, weights=w), np.ones(5), mode="same")
-    lowest = int(np.flatnonzero(per_level >= FLOOR_SHARE * per_level.max())[0])
-    on_floor = np.abs(bins - lowest) <= 2
-    order = np.argsort(z[on_floor])
-    cumulative = np.cumsum(w[on_floor][order])
-    return float(z[on_floor][order][np.searchsorted(cumulative, cumulative[-1] / 2.0)])
-
-
-def rotation_to_z(up: np.ndarray) -> np.ndarray:
-    """The ``3 x 3`` rotation by the smallest angle that takes the unit vector ``up`` to ``+z``."""
-    z = np.array([0.0, 0.0, 1.0])
-    axis = np.cross(up, z)
-    sin, cos = float(np.linalg.norm(axis)), float(np.dot(up, z))
-    if sin < 1e-12:
-        return np.eye(3) if cos > 0 else np.diag([1.0, -1.0, -1.0])
-    k = axis / sin
-    kx = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
-    return np.eye(3) + sin * kx + (1.0 - cos) * kx @ kx
+    return lowest_level(z, w, FLOOR_SHARE)

@@ -25,7 +25,7 @@ The rule, in three steps (:func:`find_up`, :func:`floor_height`):
    the lower half of its height; a scan without its ceiling leans the same way. Up
    is the direction in which the area-weighted mean height of all faces is below the
    middle of the mesh's span.
-3. **The floor** is the lowest level (:data:`LEVEL_BIN` bins) with at least
+3. **The floor** is the lowest level (2 cm bins: :func:`ssga_bench.lowest_level`) with at least
    :data:`FLOOR_SHARE` of the upward-facing area of the busiest level, which passes
    over scanning debris below the floor and over tabletops above it.
 
@@ -46,6 +46,7 @@ import numpy as np
 import trimesh
 
 from ssga_core import InputError
+from ssga_bench import lowest_level, rotation_to_z, weighted_quantiles
 from ssga_workspace_mesh.meshdata import flatten_scene
 
 UpAxis = Literal["y", "z", "auto"] | tuple[float, float, float]
@@ -54,9 +55,6 @@ from the mesh), or a vector in the file's frame."""
 
 AXIS_CONE_DEG = 10.0
 """Normals within this angle of a direction count for it (scans' floors are not flat to a degree)."""
-
-LEVEL_BIN = 0.02
-"""Height bins of the floor search, metres."""
 
 FLOOR_SHARE = 0.5
 """The floor is the lowest level with at least this share of the busiest level's upward area."""
@@ -182,23 +180,7 @@ def floor_height(triangles: np.ndarray, normals: np.ndarray, areas: np.ndarray) 
     if not upward.any():
         raise InputError("no upward-facing surface to take for the floor (surfaces should face out of solids, into rooms)")
     z, weight = triangles[upward].mean(axis=1)[:, 2], areas[upward]
-    bins = np.floor((z - z.min()) / LEVEL_BIN).astype(np.int64)
-    # Levels summed over 5 bins (10 cm), so a scanned floor's noise does not split it.
-    per_level = np.convolve(np.bincount(bins, weights=weight), np.ones(5), mode="same")
-    lowest = int(np.flatnonzero(per_level >= FLOOR_SHARE * per_level.max())[0])
-    on_floor = np.abs(bins - lowest) <= 2
-    return _weighted_quantiles(z[on_floor], weight[on_floor], (0.5,))[0]
-
-
-def rotation_to_z(up: np.ndarray) -> np.ndarray:
-    """The ``3 x 3`` rotation by the smallest angle that takes the unit vector ``up`` to ``+z``."""
-    z = np.array([0.0, 0.0, 1.0])
-    axis = np.cross(up, z)
-    sin, cos = float(np.linalg.norm(axis)), float(np.dot(up, z))
-    if sin < 1e-12:
-        # Already up, or upside down: a half turn about x (any horizontal axis would do).
-        return np.eye(3) if cos > 0 else np.diag([1.0, -1.0, -1.0])
-    return trimesh.transformations.rotation_matrix(math.atan2(sin, cos), axis / sin)[:3, :3]
+    return lowest_level(z, weight, FLOOR_SHARE)
 
 
 def _dominant_axes(normals: np.ndarray, areas: np.ndarray) -> list[np.ndarray]:
@@ -255,12 +237,5 @@ def _half_sphere(count: int) -> np.ndarray:
 
 def _extent(heights: np.ndarray, areas: np.ndarray) -> tuple[float, float]:
     """How far the mesh extends along an axis, the outermost 0.5% of its area left out either side."""
-    low, high = _weighted_quantiles(heights, areas, (0.005, 0.995))
+    low, high = weighted_quantiles(heights, areas, (0.005, 0.995))
     return low, high
-
-
-def _weighted_quantiles(values: np.ndarray, weights: np.ndarray, qs: Sequence[float]) -> list[float]:
-    order = np.argsort(values)
-    cumulative = np.cumsum(weights[order])
-    at = np.minimum(np.searchsorted(cumulative, np.asarray(qs) * cumulative[-1]), len(values) - 1)
-    return [float(v) for v in values[order][at]]
