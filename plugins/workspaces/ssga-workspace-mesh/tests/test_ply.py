@@ -319,6 +319,28 @@ def test_the_config_names_ply(tmp_path):
     assert problems == [f"path: no such mesh file {tmp_path / 'nowhere.ply'} (expected a .glb, .gltf, .obj or .ply file)"]
 
 
+def test_validation_opens_the_mesh_far_enough_to_know_it_can_be_read(tmp_path):
+    """`ssga config validate` refuses what `ssga run` would stop on after loading, in one line naming the file."""
+    good = write_ply(tmp_path / "good.ply", quad(), [[0, 1, 2, 3]])
+    assert MeshWorkspaceSource.missing(MeshConfig(path=good)) == []
+    data = good.read_bytes()
+    (tmp_path / "cut.ply").write_bytes(data[: len(data) - 10])
+    (tmp_path / "cloud.ply").write_bytes(b"ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\nproperty float y\nproperty float z\nend_header\n0 0 0\n")
+    (tmp_path / "text.ply").write_bytes(b"solid cube\n")
+    (tmp_path / "fake.glb").write_bytes(b"not a glb at all")
+    (tmp_path / "cut.glb").write_bytes(b"glTF" + (2).to_bytes(4, "little") + (1000).to_bytes(4, "little") + b"JSON")
+    expected = {
+        "cut.ply": "truncated",
+        "cloud.ply": "no faces",
+        "text.ply": "not a PLY file",
+        "fake.glb": "not a binary glTF file",
+        "cut.glb": "truncated: its header declares 1000 bytes",
+    }
+    for name, words in expected.items():
+        problems = MeshWorkspaceSource.missing(MeshConfig(path=tmp_path / name))
+        assert len(problems) == 1 and problems[0].startswith(f"path: {tmp_path / name}: ") and words in problems[0], problems
+
+
 @pytest.mark.slow
 def test_workspace_build_from_a_tilted_low_ply_scan(tmp_path, monkeypatch):
     """A ScanNet-like scan end to end: PLY, any orientation, walls below the camera."""

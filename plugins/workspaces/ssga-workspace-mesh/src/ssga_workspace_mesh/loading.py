@@ -37,7 +37,7 @@ from ssga_workspace_mesh.basisu import with_decoded_textures
 from ssga_workspace_mesh.gravity import UpAxis, level_scene, parse_up_axis
 from ssga_workspace_mesh.hm3d import load_semantic_surface, semantic_files
 from ssga_workspace_mesh.meshdata import geometry_ids
-from ssga_workspace_mesh.ply import read_ply
+from ssga_workspace_mesh.ply import ply_problem, read_ply
 
 Y_UP_TO_Z_UP = np.array(
     [
@@ -65,6 +65,32 @@ def floor_plan_path(path: str | Path) -> Path:
     """Where a mesh file's floor plan lives if it has one: ``scene.glb`` -> ``scene.floorplan.json``."""
     path = Path(path)
     return path.with_name(f"{path.stem}.floorplan.json")
+
+
+def mesh_file_problem(path: Path) -> str | None:
+    """What a glance at a mesh file shows to be wrong (missing, unreadable, an unknown format, a PLY
+    header or a GLB header that does not hold), before minutes of loading; None where nothing is."""
+    if not path.is_file():
+        return f"no such mesh file {path} (expected a {', '.join(MESH_SUFFIXES[:-1])} or {MESH_SUFFIXES[-1]} file)"
+    suffix = path.suffix.lower()
+    if suffix not in MESH_SUFFIXES:
+        return f"{path}: unsupported mesh format {path.suffix!r} (expected {', '.join(MESH_SUFFIXES)})"
+    if suffix == ".ply":
+        problem = ply_problem(path)
+        return f"{path}: {problem}" if problem else None
+    try:
+        with path.open("rb") as f:
+            head = f.read(12)
+    except OSError as exc:
+        return f"{path}: cannot read the file ({exc.strerror or exc})"
+    if suffix == ".glb":
+        # Binary glTF: magic, version, and the length of the whole file.
+        if len(head) < 12 or head[:4] != b"glTF":
+            return f"{path}: not a binary glTF file (expected it to start with 'glTF')"
+        declared = int.from_bytes(head[8:12], "little")
+        if declared > path.stat().st_size:
+            return f"{path}: truncated: its header declares {declared} bytes, the file holds {path.stat().st_size}"
+    return None
 
 
 def load_mesh_scene(

@@ -92,11 +92,15 @@ class MeshWorkspaceSource(WorkspaceSource):
 
     @classmethod
     def missing(cls, config: StageConfig) -> list[str]:
-        """The mesh file, and a floor-plan file the config names, checked before anything runs."""
+        """The mesh file (there, readable, a format it reads, a header that holds), and a floor-plan
+        file the config names, checked before anything runs."""
+        from ssga_workspace_mesh.loading import mesh_file_problem
+
         assert isinstance(config, MeshConfig)
         problems = []
-        if not config.path.is_file():
-            problems.append(f"path: no such mesh file {config.path} (expected a .glb, .gltf, .obj or .ply file)")
+        problem = mesh_file_problem(config.path)
+        if problem:
+            problems.append(f"path: {problem}")
         if config.floor_plan is not None and not config.floor_plan.is_file():
             problems.append(f"floor_plan: no such file {config.floor_plan}")
         return problems

@@ -129,6 +129,24 @@ def read_ply(path: str | Path) -> trimesh.Scene:
         raise InputError(f"{path}: {exc}") from None
 
 
+def ply_problem(path: Path) -> str | None:
+    """What is wrong with a PLY file, found by reading it as :func:`read_ply` does (its header and
+    body: a tenth of a second for a ScanNet scan) without building the mesh; None where nothing is."""
+    try:
+        data = path.read_bytes()
+    except OSError as exc:
+        return f"cannot read the file ({exc.strerror or exc})"
+    try:
+        with np.errstate(invalid="ignore", over="ignore"):
+            header = parse_header(data)
+            if not any(e.name == "face" and e.count for e in header.elements):
+                return "no faces (expected an element 'face' with a vertex_indices list: a mesh, not a point cloud)"
+            read_body(data, header)
+    except PlyError as exc:
+        return str(exc)
+    return None
+
+
 def parse_header(data: bytes) -> Header:
     """The header at the start of ``data``."""
     if not data.startswith(b"ply") or data[3:4] not in (b"\n", b"\r"):
