@@ -11,6 +11,9 @@ from ssga_core import ConfigError, SsgaError
 from ssga_bench.config import load_experiment, validate_experiment
 from ssga_core.config import format_loc
 
+GLB_HEADER = b"glTF" + (2).to_bytes(4, "little") + (12).to_bytes(4, "little")
+"""A binary glTF's 12-byte header alone: enough for validation, which reads only the header, to take the file for one."""
+
 BASE = {
     "workspace": {"name": "test-wall"},
     "stages": {"parser": {"name": "test-stripes"}, "descriptor": {"name": "test-patch-colour"}, "synthesizer": {"name": "test-shift"}},
@@ -226,7 +229,7 @@ def test_a_packaged_experiment_by_name_and_as_a_preset(tmp_path, ssga_installed_
     assert mine.config.protocol.cells == 3 and mine.config.protocol.test_per_class == 12
     assert str(mine.config.output) == "runs/mine" and mine.config.training.synthetic_per_class == 4
     # A section naming another plugin replaces the preset's (the procedural keys would not validate).
-    (tmp_path / "scan.glb").write_bytes(b"")
+    (tmp_path / "scan.glb").write_bytes(GLB_HEADER)
     (tmp_path / "other.toml").write_text('preset = "demo"\n[workspace]\nname = "mesh"\npath = "scan.glb"\n')
     other = load_experiment("other.toml", ssga_installed_registry)  # merged, the procedural keys would be errors
     assert other.workspace.name == "mesh" and [v.label for v in other.variants][0] == "SIFT-SL (PDS)"
@@ -244,7 +247,7 @@ def test_the_configs_in_docs_config_md_validate(tmp_path, ssga_installed_registr
     blocks = re.findall(r"```toml\n# docs-check: (\S+)\n(.*?)```", text, flags=re.S)
     assert {name for name, _ in blocks} >= {"swap-all", "swap-one", "paper-on-my-scan"}
     monkeypatch.chdir(tmp_path)
-    (tmp_path / "my-scan.glb").write_bytes(b"")
+    (tmp_path / "my-scan.glb").write_bytes(GLB_HEADER)
     labels = {}
     for name, body in blocks:
         (tmp_path / f"{name}.toml").write_text(body)
