@@ -207,7 +207,8 @@ class TrainingRun:
         started = datetime.datetime.now(datetime.timezone.utc)
         self.invocation = command_line(self.module, argv)  # as typed: a record written on the way (a calibration) names it
         data = self.training_data()
-        training_log(f"{len(data)} training {self.unit} of {len(self.config.train_seeds)} homes")
+        homes = getattr(self.config, "train_seeds", None)  # the config's own field, where it has one
+        training_log(f"{len(data)} training {self.unit}" + (f" of {len(homes)} homes" if homes else ""))
         init = self.initial(data)
         net = self.network()
         net.load_state_dict(init.state_dict())
