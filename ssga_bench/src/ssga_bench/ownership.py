@@ -91,8 +91,8 @@ def written_by(path: Path, command: str) -> bool:
     return isinstance(value, dict) and value.get("written_by") == command
 
 
-def check_folder(out: str | Path, marker: Marker) -> bool:
-    """Whether ``marker.command`` may write into ``out`` (True: it holds the marker already, or
+def check_folder(out: str | Path, marker: Marker) -> None:
+    """Nothing where ``marker.command`` may write into ``out`` (it holds the marker already, or
     nothing the command would replace); else one line, with nothing changed: the folder holds the
     marker of another command, or a file the command would replace and no marker (nor, by
     ``legacy``, shows the command wrote it). Writes nothing."""
@@ -102,23 +102,22 @@ def check_folder(out: str | Path, marker: Marker) -> bool:
         try:
             if not out.is_dir():  # a path the system refuses (too long, through a file) is said now, before any work
                 out.stat()
-                return True
+                return
         except FileNotFoundError:
-            return True
+            return
         if exists(own):
             if not written_by(own, marker.command):
                 raise InputError(
                     f"{own}: not written by {marker.command}; {marker.command} replaces only the files it wrote: "
                     f"choose another {marker.option} (nothing was changed)"
                 )
-            return True
+            return
         clash = next((out / name for name in marker.outputs if exists(out / name)), None)
         if clash is not None and not (marker.legacy and marker.legacy(out)):
             raise InputError(
                 f"{clash}: not written by {marker.command} (the folder has no {marker.name}), and {marker.command} would replace it; "
                 f"it replaces only the files it wrote: choose another {marker.option} (nothing was changed)"
             )
-        return True
 
 
 def claim_folder(out: str | Path, marker: Marker) -> Path:

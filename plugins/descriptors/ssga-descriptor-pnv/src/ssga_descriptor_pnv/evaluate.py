@@ -110,7 +110,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         net, fitted = load_network(weights or "pnv-light.pt")
         return evaluate(net, data, HeldOut(), wpca=fitted)
 
-    return evaluation_main("ssga_descriptor_pnv.evaluate", __doc__, argv, held_out=lambda args: render_heldout(HeldOut(), progress=print), measure=measure)
+    return evaluation_main("ssga_descriptor_pnv.evaluate", __doc__, argv, held_out=lambda args: render_heldout(HeldOut(), progress=lambda line: print(line, file=sys.stderr, flush=True)), measure=measure)
 
 if __name__ == "__main__":
     sys.exit(main())
