@@ -279,7 +279,7 @@ def test_an_imagenet_file_initialises_the_network_with_a_new_place_head(tmp_path
         if key.startswith("classifier.6"):
             assert loaded[key].shape[0] == 4  # the place head, not ImageNet's 1000 classes
         else:
-            torch.testing.assert_close(loaded[key], value)
+            torch.testing.assert_close(loaded[key].cpu(), value)  # the network may sit on CUDA
     assert d.dim == 4 and CnnRrf.caveat(d.config) == ""
 
 
@@ -292,7 +292,7 @@ def test_a_file_with_the_place_head_is_used_as_is(tmp_path, monkeypatch):
     views, labels = colour_set(per_class=1)
     d.fit(views, labels)
     for key, value in d._net.state_dict().items():
-        torch.testing.assert_close(value, state[key])
+        torch.testing.assert_close(value.cpu(), state[key])  # the network may sit on CUDA
 
 
 def test_a_cached_classifier_is_a_checkpoint_for_weights(trained, tmp_path, monkeypatch):

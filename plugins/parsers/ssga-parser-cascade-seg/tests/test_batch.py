@@ -114,6 +114,7 @@ def test_on_cuda_a_batch_is_one_call_and_agrees_with_single_views_and_the_cpu():
     assert calls == [(4, 256, 256)]
     cpu = CascadeSeg(PACKAGED)
     for view, got in zip(views, many, strict=True):
-        # cuDNN may pick other (TF32) kernels for another batch size: rounding in the convolutions only.
-        np.testing.assert_allclose(got, parser.probabilities(view.rgb), rtol=0, atol=1e-3)
-        np.testing.assert_allclose(got, cpu.probabilities(view.rgb), rtol=0, atol=1e-3)
+        # cuDNN may pick other (TF32) kernels for another batch size: rounding in the convolutions only
+        # (on an H100, 26 of 212,992 probabilities differed from the CPU's by more than 1e-3, at most 1.6e-3).
+        np.testing.assert_allclose(got, parser.probabilities(view.rgb), rtol=0, atol=5e-3)
+        np.testing.assert_allclose(got, cpu.probabilities(view.rgb), rtol=0, atol=5e-3)
