@@ -83,17 +83,19 @@ class MidasSpec:
         return (s[1].channels, s[2].channels, s[4].channels, s[6].channels)
 
 
+LITE_LAYOUT = (("ds", 3, 1), ("ir", 3, 2), ("ir", 5, 2), ("ir", 3, 2), ("ir", 5, 1), ("ir", 5, 2), ("ir", 3, 1))
+"""EfficientNet-Lite's 7 stages: block kind, kernel and stride, the same at every width and depth."""
+
+
+def lite_stages(repeats: Sequence[int], expand: int, channels: Sequence[int]) -> tuple[BlockStage, ...]:
+    """The 7 stages of :data:`LITE_LAYOUT` with these depths, widths and expansion (the depthwise-separable stage expands by 1)."""
+    layout = zip(LITE_LAYOUT, repeats, channels, strict=True)
+    return tuple(BlockStage(kind, n, kernel, stride, 1 if kind == "ds" else expand, c) for (kind, kernel, stride), n, c in layout)
+
+
 V21_SMALL = MidasSpec(
     stem=32,
-    stages=(
-        BlockStage("ds", 1, 3, 1, 1, 24),
-        BlockStage("ir", 3, 3, 2, 6, 32),
-        BlockStage("ir", 3, 5, 2, 6, 48),
-        BlockStage("ir", 5, 3, 2, 6, 96),
-        BlockStage("ir", 5, 5, 1, 6, 136),
-        BlockStage("ir", 6, 5, 2, 6, 232),
-        BlockStage("ir", 1, 3, 1, 6, 384),
-    ),
+    stages=lite_stages(repeats=(1, 3, 3, 5, 5, 6, 1), expand=6, channels=(24, 32, 48, 96, 136, 232, 384)),
     features=64,
     head=32,
     input_size=256,
@@ -102,15 +104,7 @@ V21_SMALL = MidasSpec(
 
 LIGHT = MidasSpec(
     stem=16,
-    stages=(
-        BlockStage("ds", 1, 3, 1, 1, 8),
-        BlockStage("ir", 1, 3, 2, 4, 16),
-        BlockStage("ir", 2, 5, 2, 4, 24),
-        BlockStage("ir", 2, 3, 2, 4, 48),
-        BlockStage("ir", 2, 5, 1, 4, 64),
-        BlockStage("ir", 2, 5, 2, 4, 96),
-        BlockStage("ir", 1, 3, 1, 4, 128),
-    ),
+    stages=lite_stages(repeats=(1, 1, 2, 2, 2, 2, 1), expand=4, channels=(8, 16, 24, 48, 64, 96, 128)),
     features=16,
     head=16,
     input_size=256,
