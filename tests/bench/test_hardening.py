@@ -25,7 +25,7 @@ from ssga_bench.dataset_build import build_dataset
 from ssga_bench.experiment import folder_names, run_experiment
 from ssga_bench.io import OutputError, atomic_write_bytes
 from ssga_bench.protocol import ProtocolConfig
-from ssga_bench.testing import WallWorkspaceSource
+from ssga_bench.testing import WallWorkspaceSource, cli_error_line, read_only_below, snapshot
 from ssga_core.cli import app_with_plugin_commands
 from ssga_core.errors import ConfigError
 
@@ -69,22 +69,10 @@ def invoke(*args: str):
     return runner.invoke(app, [str(a) for a in args])
 
 
-def one_line_error(result, *names: str, code: int = 1) -> str:
+def one_line_error(result, *names: str) -> str:
     """The one ``error:`` line of a failed command, checked: no traceback, names each of ``names``."""
-    assert result.exit_code == code, (result.output, result.exception)
-    # CliRunner catches what the command raised: anything but an exit is a crash with a traceback.
-    assert result.exception is None or isinstance(result.exception, SystemExit), repr(result.exception)
-    assert "Traceback" not in result.output
     # Progress bars and "variant ..." lines may come before it on stderr.
-    lines = [line for line in result.stderr.splitlines() if line.strip() and "━" not in line and not line.startswith("variant ")]
-    assert len(lines) == 1 and lines[0].startswith("error: "), result.stderr
-    for name in names:
-        assert str(name) in lines[0], lines[0]
-    return lines[0]
-
-
-def snapshot(root: Path) -> dict[str, bytes]:
-    return {p.relative_to(root).as_posix(): p.read_bytes() for p in sorted(root.rglob("*")) if p.is_file()}
+    return cli_error_line(result, *names, passing=("variant ",))
 
 
 def stand_in_experiment(registry, variants=("PDS", "PD")):
@@ -226,14 +214,7 @@ def test_a_finished_read_only_dataset_is_reused_without_writing(workdir, monkeyp
     assert invoke("workspace", "build", "--config", "exp.toml").exit_code == 0
     (folder,) = (workdir / "runs" / "workspaces").iterdir()
     before = snapshot(folder)
-    real = ssga_bench.io.atomic_write_bytes
-
-    def read_only(path, data):
-        if Path(path).resolve().is_relative_to(folder.resolve()):
-            raise OutputError(f"{path}: cannot write: {os.strerror(errno.EROFS)}")
-        return real(path, data)
-
-    monkeypatch.setattr("ssga_bench.io.atomic_write_bytes", read_only)
+    monkeypatch.setattr("ssga_bench.io.atomic_write_bytes", read_only_below(folder, ssga_bench.io.atomic_write_bytes))
     result = invoke("workspace", "build", "--config", "exp.toml")
     assert result.exit_code == 0, result.output
     result = invoke("run", "exp.toml", "--output", "out")

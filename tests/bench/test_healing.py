@@ -9,9 +9,7 @@ were and that either the dataset healed or one line says what is wrong and how t
 
 from __future__ import annotations
 
-import errno
 import json
-import os
 import re
 from pathlib import Path
 
@@ -22,9 +20,9 @@ import ssga_bench.io
 from ssga_bench.dataset import Dataset
 from ssga_bench.dataset_build import build_dataset
 from ssga_bench.health import check_dataset
-from ssga_bench.io import OutputError, png_problem
+from ssga_bench.io import png_problem
 from ssga_bench.protocol import ProtocolConfig
-from ssga_bench.testing import WallWorkspaceSource
+from ssga_bench.testing import WallWorkspaceSource, cli_error_line, read_only_below, snapshot
 from ssga_core.cli import app_with_plugin_commands
 from ssga_core.errors import InputError
 
@@ -39,19 +37,8 @@ def invoke(*args):
     return runner.invoke(app, [str(a) for a in args])
 
 
-def snapshot(root: Path) -> dict[str, bytes]:
-    return {p.relative_to(root).as_posix(): p.read_bytes() for p in sorted(root.rglob("*")) if p.is_file()}
-
-
 def one_line_error(result, *names) -> str:
-    assert result.exit_code == 1, (result.output, result.exception)
-    assert result.exception is None or isinstance(result.exception, SystemExit), repr(result.exception)
-    assert "Traceback" not in result.output
-    lines = [line for line in result.stderr.splitlines() if line.strip() and "━" not in line and not line.startswith("warning: ")]
-    assert len(lines) == 1 and lines[0].startswith("error: "), result.stderr
-    for name in names:
-        assert str(name) in lines[0], lines[0]
-    return lines[0]
+    return cli_error_line(result, *names, passing=("warning: ",))
 
 
 def build(out, **kw):
@@ -245,13 +232,7 @@ def test_a_dataset_in_a_read_only_folder_says_what_and_how(dataset, stand_ins, m
     out, _ = dataset
     made = damage(out)
     before = snapshot(out)
-    real = ssga_bench.io.atomic_write_bytes
-
-    def read_only(path, data):
-        if Path(path).resolve().is_relative_to(out.resolve()):
-            raise OutputError(f"{path}: cannot write: {os.strerror(errno.EROFS)}")
-        return real(path, data)
-
+    read_only = read_only_below(out, ssga_bench.io.atomic_write_bytes)
     monkeypatch.setattr("ssga_bench.io.atomic_write_bytes", read_only)
     monkeypatch.setattr("ssga_bench.dataset_build.atomic_write_bytes", read_only)
     with pytest.raises(InputError) as info:

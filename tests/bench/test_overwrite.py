@@ -10,7 +10,6 @@ line at the CLI and the same message as an InputError at the API, and that every
 from __future__ import annotations
 
 import json
-from pathlib import Path
 
 import cv2
 import h5py
@@ -20,7 +19,7 @@ from typer.testing import CliRunner
 
 from ssga_bench.dataset_build import build_dataset
 from ssga_bench.protocol import ProtocolConfig
-from ssga_bench.testing import WallWorkspaceSource
+from ssga_bench.testing import WallWorkspaceSource, cli_error_line, snapshot
 from ssga_core.cli import app_with_plugin_commands
 from ssga_core.errors import InputError
 from ssga_core.testing import make_view
@@ -52,21 +51,11 @@ def invoke(*args):
     return runner.invoke(app, [str(a) for a in args])
 
 
-def snapshot(root: Path) -> dict[str, bytes]:
-    return {p.relative_to(root).as_posix(): p.read_bytes() for p in sorted(root.rglob("*")) if p.is_file()}
-
-
 def refused(result, *names) -> str:
     """The one ``error:`` line of a refusal, without a traceback, naming each of ``names``; the message without ``error: ``."""
-    assert result.exit_code == 1, (result.output, result.exception)
-    assert result.exception is None or isinstance(result.exception, SystemExit), repr(result.exception)
-    assert "Traceback" not in result.output
-    lines = [line for line in result.stderr.splitlines() if line.strip() and "━" not in line]
-    assert len(lines) == 1 and lines[0].startswith("error: "), result.stderr
-    for name in names:
-        assert str(name) in lines[0], lines[0]
-    assert "nothing was changed" in lines[0]
-    return lines[0].removeprefix("error: ")
+    line = cli_error_line(result, *names)
+    assert "nothing was changed" in line
+    return line.removeprefix("error: ")
 
 
 @pytest.fixture

@@ -22,7 +22,7 @@ from ssga_bench.dataset_build import build_dataset
 from ssga_bench.health import check_dataset
 from ssga_bench.io import PathError, path_error, path_errors
 from ssga_bench.protocol import ProtocolConfig
-from ssga_bench.testing import WallWorkspaceSource
+from ssga_bench.testing import WallWorkspaceSource, cli_error_line, snapshot
 from ssga_core import hookimpl
 from ssga_core.cli import app_with_plugin_commands
 from ssga_core.config import resolve_stage
@@ -79,13 +79,7 @@ def workdir(tmp_path, monkeypatch, ssga_plugin_set):
 
 
 def cli_line(*args) -> str:
-    result = runner.invoke(app, [str(a) for a in args])
-    assert result.exit_code == 1, (result.output, result.exception)
-    assert result.exception is None or isinstance(result.exception, SystemExit), repr(result.exception)
-    assert "Traceback" not in result.output
-    lines = [line for line in result.stderr.splitlines() if line.strip() and "━" not in line]
-    assert len(lines) == 1 and lines[0].startswith("error: "), result.stderr
-    return lines[0].removeprefix("error: ")
+    return cli_error_line(runner.invoke(app, [str(a) for a in args])).removeprefix("error: ")
 
 
 def api_message(call) -> str:
@@ -94,10 +88,6 @@ def api_message(call) -> str:
     message = str(info.value)
     assert "\n" not in message, message
     return message
-
-
-def snapshot(root: Path) -> dict[str, bytes]:
-    return {p.relative_to(root).as_posix(): p.read_bytes() for p in sorted(root.rglob("*")) if p.is_file()}
 
 
 def config(text: str) -> Path:

@@ -171,3 +171,40 @@ def one_torch_thread() -> Iterator[None]:
         yield
     finally:
         torch.set_num_threads(before)
+
+
+# Checks of the commands' failures, shared by the tests of what a command refuses or survives.
+
+
+def snapshot(root: Path) -> dict[str, bytes]:
+    """Every file below ``root`` (its POSIX path relative to ``root``) and its bytes: compared before and after, what changed."""
+    return {p.relative_to(root).as_posix(): p.read_bytes() for p in sorted(root.rglob("*")) if p.is_file()}
+
+
+def cli_error_line(result: Any, *names: object, passing: tuple[str, ...] = ()) -> str:
+    """The one ``error: ...`` line of a command that failed (typer's ``CliRunner`` result), checked: exit 1, no
+    traceback, each of ``names`` in it. Progress bars and lines starting with one of ``passing`` may stand beside it."""
+    assert result.exit_code == 1, (result.output, result.exception)
+    # CliRunner catches what the command raised: anything but an exit is a crash with a traceback.
+    assert result.exception is None or isinstance(result.exception, SystemExit), repr(result.exception)
+    assert "Traceback" not in result.output
+    lines = [line for line in result.stderr.splitlines() if line.strip() and "━" not in line and not line.startswith(passing)]
+    assert len(lines) == 1 and lines[0].startswith("error: "), result.stderr
+    for name in names:
+        assert str(name) in lines[0], lines[0]
+    return lines[0]
+
+
+def read_only_below(folder: Path, write: Callable[[Path, bytes], Any]) -> Callable[[Path, bytes], Any]:
+    """``write`` (:func:`ssga_bench.io.atomic_write_bytes`) refusing every file below ``folder``, as a read-only file system would."""
+    import errno
+    import os
+
+    from ssga_bench.io import OutputError
+
+    def read_only(path: Path, data: bytes) -> Any:
+        if Path(path).resolve().is_relative_to(folder.resolve()):
+            raise OutputError(f"{path}: cannot write: {os.strerror(errno.EROFS)}")
+        return write(path, data)
+
+    return read_only
