@@ -10,6 +10,7 @@ line at the CLI and the same message as an InputError at the API, and that every
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import cv2
 import h5py
@@ -58,6 +59,14 @@ def refused(result, *names) -> str:
     return line.removeprefix("error: ")
 
 
+def refused_unchanged(root: Path, args, *names) -> str:
+    """``ssga *args`` refused (:func:`refused`), every file below ``root`` as it was; the message."""
+    before = snapshot(root)
+    message = refused(invoke(*args), *names)
+    assert snapshot(root) == before
+    return message
+
+
 @pytest.fixture
 def workdir(tmp_path, monkeypatch, stand_ins):
     monkeypatch.chdir(tmp_path)
@@ -88,9 +97,7 @@ def test_overwrite_on_a_folder_ssga_did_not_write_is_refused(workdir):
     out = workdir / "photos"
     out.mkdir()
     (out / "holiday.jpg").write_bytes(b"jpeg")
-    before = snapshot(workdir)
-    refused(invoke(*BUILD, "--out", out, "--overwrite"), out, "not a dataset folder ssga wrote", "--overwrite")
-    assert snapshot(workdir) == before
+    refused_unchanged(workdir, [*BUILD, "--out", out, "--overwrite"], out, "not a dataset folder ssga wrote", "--overwrite")
     # Without --overwrite, a new dataset may share a folder with the user's files: nothing of theirs is replaced.
     assert invoke(*BUILD, "--out", out).exit_code == 0
     assert (out / "holiday.jpg").read_bytes() == b"jpeg"
@@ -106,9 +113,7 @@ def test_a_new_build_never_replaces_a_users_file_where_a_view_goes(workdir):
     target = workdir / "mine"
     (target / "rgb").mkdir(parents=True)
     (target / "rgb" / view).write_bytes(b"my picture")
-    before = snapshot(workdir)
-    refused(invoke(*BUILD, "--out", target), target / "rgb" / view, "not written by ssga")
-    assert snapshot(workdir) == before
+    refused_unchanged(workdir, [*BUILD, "--out", target], target / "rgb" / view, "not written by ssga")
 
 
 def test_overwrite_replaces_a_dataset_ssga_wrote(workdir):
@@ -157,9 +162,7 @@ def test_run_refuses_a_marker_it_did_not_write(workdir):
     out = workdir / "out"
     out.mkdir()
     (out / "run.json").write_text('{"my": "run"}')
-    before = snapshot(workdir)
-    refused(invoke("run", "exp.toml", "--output", out), out / "run.json", "not written by ssga run")
-    assert snapshot(workdir) == before
+    refused_unchanged(workdir, ["run", "exp.toml", "--output", out], out / "run.json", "not written by ssga run")
 
 
 def test_bench_never_replaces_a_users_file_in_its_output(workdir, monkeypatch):
@@ -167,9 +170,7 @@ def test_bench_never_replaces_a_users_file_in_its_output(workdir, monkeypatch):
     out = workdir / "out"
     out.mkdir()
     (out / "index.html").write_text("<p>mine</p>")
-    before = snapshot(workdir)
-    refused(invoke("bench", "exp.toml", "--seeds", "0", "--output", out), out / "index.html", "not written by ssga bench")
-    assert snapshot(workdir) == before
+    refused_unchanged(workdir, ["bench", "exp.toml", "--seeds", "0", "--output", out], out / "index.html", "not written by ssga bench")
 
 
 # --- extract, parse, synthesize ---
@@ -183,6 +184,11 @@ def image(workdir):
     return path
 
 
+def synthesize(image: Path, out: Path) -> list:
+    """``ssga synthesize`` of the ``image`` fixture (its depth beside it) into ``out``."""
+    return ["synthesize", image, "--depth", image.parent / "img-depth.png", "--synthesizer", "test-shift", "--move", "0.5,0,0", "--out", out]
+
+
 @pytest.mark.parametrize("kind", ["text", "hdf5"])
 def test_extract_never_replaces_a_users_file(workdir, image, kind):
     out = workdir / "features.h5"
@@ -191,9 +197,7 @@ def test_extract_never_replaces_a_users_file(workdir, image, kind):
     else:
         with h5py.File(out, "w") as h5:
             h5.create_dataset("mine", data=np.arange(3))
-    before = snapshot(workdir)
-    refused(invoke("extract", image, "--descriptor", "test-patch-colour", "--out", out), out, "not written by ssga extract")
-    assert snapshot(workdir) == before
+    refused_unchanged(workdir, ["extract", image, "--descriptor", "test-patch-colour", "--out", out], out, "not written by ssga extract")
 
 
 def test_extract_replaces_its_own_file(workdir, image):
@@ -207,9 +211,7 @@ def test_parse_never_replaces_a_users_file(workdir, image, name, data):
     out = workdir / "graphs"
     out.mkdir()
     (out / name).write_bytes(data)
-    before = snapshot(workdir)
-    refused(invoke("parse", image, "--parser", "test-stripes", "--out", out), out / name, "not written by ssga parse")
-    assert snapshot(workdir) == before
+    refused_unchanged(workdir, ["parse", image, "--parser", "test-stripes", "--out", out], out / name, "not written by ssga parse")
 
 
 def test_parse_replaces_its_own_files(workdir, image):
@@ -225,15 +227,12 @@ def test_synthesize_never_replaces_a_users_file(workdir, image, name, data):
     out = workdir / "syn"
     out.mkdir()
     (out / name).write_bytes(data)
-    before = snapshot(workdir)
-    args = ["synthesize", image, "--depth", workdir / "img-depth.png", "--synthesizer", "test-shift", "--move", "0.5,0,0", "--out", out]
-    refused(invoke(*args), out / name, "not written by ssga synthesize")
-    assert snapshot(workdir) == before
+    refused_unchanged(workdir, synthesize(image, out), out / name, "not written by ssga synthesize")
 
 
 def test_synthesize_marks_its_folder_and_replaces_its_own_files(workdir, image):
     out = workdir / "syn"
-    args = ["synthesize", image, "--depth", workdir / "img-depth.png", "--synthesizer", "test-shift", "--move", "0.5,0,0", "--out", out]
+    args = synthesize(image, out)
     result = invoke(*args)
     assert result.exit_code == 0, result.output
     assert json.loads((out / "synthesis.json").read_text())["written_by"] == "ssga synthesize"
@@ -245,6 +244,4 @@ def test_bench_refuses_a_seed_folder_it_did_not_write_before_writing_anything(wo
     out = workdir / "out"
     (out / "seed-1").mkdir(parents=True)
     (out / "seed-1" / "report.md").write_text("my report")
-    before = snapshot(workdir)
-    refused(invoke("bench", "exp.toml", "--seeds", "0,1", "--output", out), out / "seed-1" / "report.md", "not written by ssga run")
-    assert snapshot(workdir) == before
+    refused_unchanged(workdir, ["bench", "exp.toml", "--seeds", "0,1", "--output", out], out / "seed-1" / "report.md", "not written by ssga run")
