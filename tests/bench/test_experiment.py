@@ -295,7 +295,6 @@ def test_a_learned_fusion_without_validation_views_is_refused_before_anything_ru
 def test_packaged_weights_on_another_kind_of_workspace_are_flagged_in_the_report(tmp_path, dataset, ssga_plugin_set, monkeypatch):
     from ssga_bench import testing
     from ssga_bench.learned import Learned, LearnedConfig
-    from ssga_core import hookimpl
     from ssga_core.testing import stages
     from ssga_core.testing.stages import PatchColour
 
@@ -311,13 +310,9 @@ def test_packaged_weights_on_another_kind_of_workspace_are_flagged_in_the_report
         packaged_weights = packaged
         trained_on = "procedural"
 
-    class Plugin:
-        @hookimpl
-        def ssga_register_descriptors(self):
-            return [TrainedHere]
-
     ssga_plugin_set.load_entry_points()
-    for module, name in ((stages, "stand-ins"), (testing, "stand-in-workspaces"), (Plugin(), "trained-here")):
+    trained_here = testing.plugin_with(TrainedHere, hook="ssga_register_descriptors")
+    for module, name in ((stages, "stand-ins"), (testing, "stand-in-workspaces"), (trained_here, "trained-here")):
         ssga_plugin_set.register(module, name)
     config = {
         "workspace": {"name": "test-wall"},

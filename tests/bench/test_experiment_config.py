@@ -183,8 +183,8 @@ def test_format_loc():
 def test_relative_paths_in_stage_parameters_follow_the_config_file(tmp_path, registry, ssga_plugin_set):
     from pathlib import Path
 
-    from ssga_core import StageConfig, hookimpl
-    from ssga_bench.testing import WallWorkspaceSource
+    from ssga_core import StageConfig
+    from ssga_bench.testing import WallWorkspaceSource, plugin_with
 
     class MeshConfig(StageConfig):
         mesh: Path
@@ -193,12 +193,7 @@ def test_relative_paths_in_stage_parameters_follow_the_config_file(tmp_path, reg
         name = "test-mesh"
         Config = MeshConfig
 
-    class Plugin:
-        @hookimpl
-        def ssga_register_workspaces(self):
-            return [MeshSource]
-
-    ssga_plugin_set.register(Plugin(), "mesh")  # beside the stand-ins the `registry` fixture registered
+    ssga_plugin_set.register(plugin_with(MeshSource, hook="ssga_register_workspaces"), "mesh")  # beside the stand-ins the `registry` fixture registered
     with_mesh = ssga_plugin_set.registry()
     (tmp_path / "sub").mkdir()
     path = tmp_path / "sub" / "exp.toml"

@@ -25,7 +25,7 @@ from ssga_bench.dataset_build import build_dataset
 from ssga_bench.experiment import folder_names, run_experiment
 from ssga_bench.io import OutputError, atomic_write_bytes
 from ssga_bench.protocol import ProtocolConfig
-from ssga_bench.testing import WallWorkspaceSource, cli_error_line, read_only_below, snapshot
+from ssga_bench.testing import WallWorkspaceSource, cli_error_line, plugin_with, read_only_below, snapshot
 from ssga_core.cli import app_with_plugin_commands
 from ssga_core.errors import ConfigError
 
@@ -454,7 +454,6 @@ def test_variants_of_a_config_as_json_with_the_orders(workdir):
 
 def test_a_variant_without_its_weights_is_reported_not_dropped(tmp_path, dataset, ssga_plugin_set, stand_ins):
     from ssga_bench.learned import Learned, LearnedConfig
-    from ssga_core import hookimpl
     from ssga_core.testing.stages import PatchColour
 
     class Unweighted(Learned, PatchColour):
@@ -466,12 +465,7 @@ def test_a_variant_without_its_weights_is_reported_not_dropped(tmp_path, dataset
             self.weights_file()  # the checkpoint is looked up when first needed, as a learned stage does
             return super()._extract(view)
 
-    class Plugin:
-        @hookimpl
-        def ssga_register_descriptors(self):
-            return [Unweighted]
-
-    ssga_plugin_set.register(Plugin(), "unweighted")
+    ssga_plugin_set.register(plugin_with(Unweighted, hook="ssga_register_descriptors"), "unweighted")
     registry = ssga_plugin_set.registry()
     exp = validate_experiment(
         {

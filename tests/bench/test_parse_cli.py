@@ -11,7 +11,8 @@ from typer.testing import CliRunner
 
 from ssga_bench.io import ids_from_png16, ids_to_png16
 from ssga_bench.scene_graph_figure import TINT, drawing_scale, region_colours
-from ssga_core import Parser, Regions, StageConfig, View, hookimpl, resolve_stage
+from ssga_bench.testing import plugin_with
+from ssga_core import Parser, Regions, StageConfig, View, resolve_stage
 from ssga_core.cli import app_with_plugin_commands
 from ssga_core.graph import assemble
 from ssga_core.testing import make_view
@@ -119,12 +120,7 @@ class Detections(Parser):
 
 @pytest.fixture
 def detections(monkeypatch, ssga_plugin_set, stand_ins):
-    class Plugin:
-        @hookimpl
-        def ssga_register_parsers(self):
-            return [Detections]
-
-    ssga_plugin_set.register(Plugin(), "detections")
+    ssga_plugin_set.register(plugin_with(Detections), "detections")
     registry = ssga_plugin_set.registry()
     monkeypatch.setattr("ssga_core.plugins.default_registry", lambda: registry)
 

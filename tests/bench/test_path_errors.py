@@ -22,8 +22,7 @@ from ssga_bench.dataset_build import build_dataset
 from ssga_bench.health import check_dataset
 from ssga_bench.io import PathError, path_error, path_errors
 from ssga_bench.protocol import ProtocolConfig
-from ssga_bench.testing import WallWorkspaceSource, cli_error_line, snapshot
-from ssga_core import hookimpl
+from ssga_bench.testing import WallWorkspaceSource, cli_error_line, plugin_with, snapshot
 from ssga_core.cli import app_with_plugin_commands
 from ssga_core.config import resolve_stage
 from ssga_core import plugins
@@ -54,15 +53,9 @@ class ScanSource(WorkspaceSource):
         return WallWorkspaceSource().open()
 
 
-class ScanPlugin:
-    @hookimpl
-    def ssga_register_workspaces(self):
-        return [ScanSource]
-
-
 @pytest.fixture
 def workdir(tmp_path, monkeypatch, ssga_plugin_set):
-    ssga_plugin_set.register(ScanPlugin(), "scan")
+    ssga_plugin_set.register(plugin_with(ScanSource, hook="ssga_register_workspaces"), "scan")
     from ssga_bench import testing as stand_in_workspaces
     from ssga_core.testing import stages as stand_in_stages
 

@@ -12,22 +12,9 @@ from ssga_core.errors import UnknownStageError
 from ssga_core.plugins import get_plugin_manager
 from ssga_core.testing import FakeDistribution, FakeEntryPoint
 from ssga_core.testing.stages import StripesParser
+from ssga_bench.testing import plugin_with
 
 REPO = Path(__file__).resolve().parents[2]
-
-
-def plugin_with(*classes, hook="ssga_register_parsers"):
-    """A throwaway plugin object implementing one registration hook."""
-
-    class Plugin:
-        pass
-
-    def register():
-        return list(classes)
-
-    register.__name__ = hook
-    setattr(Plugin, hook, staticmethod(hookimpl(register)))
-    return Plugin()
 
 
 def test_every_installed_plugin_of_the_repository_loads(ssga_installed_registry):

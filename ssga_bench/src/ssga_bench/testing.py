@@ -208,3 +208,17 @@ def read_only_below(folder: Path, write: Callable[[Path, bytes], Any]) -> Callab
         return write(path, data)
 
     return read_only
+
+
+def plugin_with(*classes: type, hook: str = "ssga_register_parsers") -> Any:
+    """A throwaway plugin object implementing one registration hook, ``hook``, that registers ``classes``."""
+
+    class Plugin:
+        pass
+
+    def register() -> list[type]:
+        return list(classes)
+
+    register.__name__ = hook
+    setattr(Plugin, hook, staticmethod(hookimpl(register)))
+    return Plugin()
