@@ -222,3 +222,14 @@ def plugin_with(*classes: type, hook: str = "ssga_register_parsers") -> Any:
     register.__name__ = hook
     setattr(Plugin, hook, staticmethod(hookimpl(register)))
     return Plugin()
+
+
+def check_installed(registry: Any, kind: str, name: str, cls: type, distribution: str) -> None:
+    """``cls`` is the ``kind`` plugin ``name`` of the installed distribution ``distribution``, in ``registry`` (the
+    ``ssga_installed_registry`` fixture's) and in the default plugin manager's."""
+    from ssga_core.plugins import get_plugin_manager
+
+    entry = registry.entry(kind, name)
+    assert entry.cls is cls
+    assert entry.plugin.distribution == distribution
+    assert get_plugin_manager().registry().get(kind, name) is cls

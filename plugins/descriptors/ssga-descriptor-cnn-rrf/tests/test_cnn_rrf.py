@@ -20,7 +20,8 @@ from ssga_descriptor_cnn_rrf.vgg import VGG
 
 from ssga_bench import NotFittedError, checkpoint_bytes, validate_experiment
 from ssga_core import Camera, CheckpointError, InputError, Pose, Regions, View
-from ssga_core.testing import check_descriptor, check_descriptor_in_all_orders, get_plugin_manager, make_view
+from ssga_bench.testing import check_installed
+from ssga_core.testing import check_descriptor, check_descriptor_in_all_orders, make_view
 
 TINY = {"width": 1 / 16, "hidden": 32, "pool": 1, "input_size": 32, "min_crop": 4.0, "batch_size": 16}
 """A VGG16 layout 16 times narrower (4...32 channels) on 32 px inputs."""
@@ -91,10 +92,7 @@ def trained(tmp_path_factory) -> Iterator[CnnRrf]:
 
 
 def test_is_installed_and_registered(ssga_installed_registry):
-    entry = ssga_installed_registry.entry("descriptor", "cnn-rrf")
-    assert entry.cls is CnnRrf
-    assert entry.plugin.distribution == "ssga-descriptor-cnn-rrf"
-    assert get_plugin_manager().registry().get("descriptor", "cnn-rrf") is CnnRrf
+    check_installed(ssga_installed_registry, "descriptor", "cnn-rrf", CnnRrf, "ssga-descriptor-cnn-rrf")
 
 
 def test_the_default_is_the_light_preset_trained_here_and_presets_validate():

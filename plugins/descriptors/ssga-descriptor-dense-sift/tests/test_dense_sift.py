@@ -9,7 +9,7 @@ from ssga_descriptor_dense_sift.plugin import DenseSift, DenseSiftConfig, grid_p
 
 from ssga_core import Camera, InputError, Pose, View
 from ssga_bench import BoWConfig, NotFittedError
-from ssga_core.testing import get_plugin_manager
+from ssga_bench.testing import check_installed
 from ssga_core.testing import check_descriptor, check_descriptor_in_all_orders, make_view
 
 
@@ -27,10 +27,7 @@ def _view(rgb: np.ndarray) -> View:
 
 
 def test_is_installed_and_registered(ssga_installed_registry):
-    entry = ssga_installed_registry.entry("descriptor", "dense-sift")
-    assert entry.cls is DenseSift
-    assert entry.plugin.distribution == "ssga-descriptor-dense-sift"
-    assert get_plugin_manager().registry().get("descriptor", "dense-sift") is DenseSift
+    check_installed(ssga_installed_registry, "descriptor", "dense-sift", DenseSift, "ssga-descriptor-dense-sift")
 
 
 def test_meets_the_descriptor_contract():

@@ -9,7 +9,8 @@ from ssga_synthesizer_depth_warp.plugin import DepthWarp, DepthWarpConfig
 from ssga_synthesizer_midas_warp.plugin import MidasWarp, MidasWarpConfig
 
 from ssga_core import Data, InputError, Pose, Synthesizer, View
-from ssga_core.testing import check_synthesizer, check_synthesizer_in_all_orders, get_plugin_manager, make_view
+from ssga_bench.testing import check_installed
+from ssga_core.testing import check_synthesizer, check_synthesizer_in_all_orders, make_view
 
 
 @pytest.fixture(scope="module")
@@ -22,10 +23,7 @@ def without_depth(view: View) -> View:
 
 
 def test_is_installed_and_registered(ssga_installed_registry):
-    entry = ssga_installed_registry.entry("synthesizer", "midas-warp")
-    assert entry.cls is MidasWarp
-    assert entry.plugin.distribution == "ssga-synthesizer-midas-warp"
-    assert get_plugin_manager().registry().get("synthesizer", "midas-warp") is MidasWarp
+    check_installed(ssga_installed_registry, "synthesizer", "midas-warp", MidasWarp, "ssga-synthesizer-midas-warp")
 
 
 def test_declares_rgb_in_and_depth_out():
