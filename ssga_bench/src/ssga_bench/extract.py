@@ -48,12 +48,17 @@ def image_names(paths: Sequence[Path]) -> list[str]:
     absolute = [p.resolve() for p in paths]
     root = Path(os.path.commonpath([p.parent for p in absolute]))
     names = [p.relative_to(root).as_posix() for p in absolute]
-    seen: dict[str, Path] = {}
-    for name, path in zip(names, paths):
-        if name in seen:
-            raise InputError(f"{path}: given twice (as {seen[name]} too); each image once")
-        seen[name] = path
+    refuse_repeats(names, paths, lambda name, earlier: f"given twice (as {earlier} too); each image once")
     return names
+
+
+def refuse_repeats(keys: Sequence[str], paths: Sequence[Path], why: Callable[[str, Path], str]) -> None:
+    """Each of ``keys`` (one per path) once: else an InputError ``{path}: {why(key, earlier path)}`` for the first repeat."""
+    seen: dict[str, Path] = {}
+    for key, path in zip(keys, paths):
+        if key in seen:
+            raise InputError(f"{path}: {why(key, seen[key])}")
+        seen[key] = path
 
 
 def load_image(path: Path) -> tuple[View, tuple[int, int] | None]:

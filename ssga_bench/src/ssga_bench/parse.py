@@ -38,7 +38,7 @@ from typing import Any
 
 import numpy as np
 
-from ssga_bench.extract import image_names
+from ssga_bench.extract import image_names, refuse_repeats
 from ssga_bench.execution import Executor, SerialExecutor
 from ssga_bench.io import (
     WORKING_SIDE,
@@ -165,11 +165,7 @@ def parser_record(parser: Parser, preset: str | None) -> dict[str, Any]:
 def output_names(paths: Sequence[Path]) -> list[str]:
     """Each image's ``NAME``: its path relative to the images' common folder, without the suffix; one per image."""
     stems = [str(Path(name).with_suffix("")) for name in image_names(paths)]
-    seen: dict[str, Path] = {}
-    for stem, path in zip(stems, paths):
-        if stem in seen:
-            raise InputError(f"{path}: would write the same {stem}.* files as {seen[stem]}; rename one of them or parse them apart")
-        seen[stem] = path
+    refuse_repeats(stems, paths, lambda stem, earlier: f"would write the same {stem}.* files as {earlier}; rename one of them or parse them apart")
     return stems
 
 
