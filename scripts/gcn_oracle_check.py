@@ -28,10 +28,8 @@ from __future__ import annotations
 import argparse
 import functools
 import hashlib
-import importlib.util
 import json
 import pickle
-import subprocess
 import sys
 import time
 from pathlib import Path
@@ -50,6 +48,8 @@ from ssga_core.config import resolve_stage
 from ssga_core.pipeline import BoundVariant, build_graph
 from ssga_core.plugins import default_registry
 from ssga_core.variants import parse_variant
+
+from history import module_at
 
 OLD_COMMIT = "03b8d7f"
 """The last commit with the dense-batch GCN (mean readout, no input statistics)."""
@@ -128,15 +128,7 @@ def cached_graphs(args: argparse.Namespace) -> dict[str, Any]:
 
 @functools.cache
 def old_module() -> ModuleType:
-    source = subprocess.run(
-        ["git", "show", f"{OLD_COMMIT}:ssga_bench/src/ssga_bench/gcn.py"], capture_output=True, text=True, check=True
-    ).stdout
-    spec = importlib.util.spec_from_loader("old_gcn", loader=None)
-    assert spec is not None
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module  # dataclasses look their module up there
-    exec(compile(source, f"{OLD_COMMIT}:gcn.py", "exec"), module.__dict__)  # noqa: S102 - this repository's own history
-    return module
+    return module_at(OLD_COMMIT, "ssga_bench/src/ssga_bench/gcn.py", "old_gcn")
 
 
 def train_one(

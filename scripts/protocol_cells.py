@@ -20,10 +20,6 @@ does, then counted at the protocol's defaults with ``--cell-size`` (1 m) and 12 
 from __future__ import annotations
 
 import argparse
-import importlib.util
-import subprocess
-import sys
-from pathlib import Path
 
 import numpy as np
 from ssga_workspace_mesh.floorplan import floor_plan_from_mesh
@@ -32,6 +28,8 @@ from ssga_workspace_mesh.scenes import furnished_room
 from ssga_core import Camera
 from ssga_bench.protocol import FULL_REACH, Protocol, ProtocolConfig
 
+from history import module_at
+
 OLD_COMMIT = "0e535dc"
 """The last commit whose canonical viewpoints stood at 0.5 to 1.5 times ``viewpoint_distance``."""
 ROOMS = (((3.0, 4.0), 4), ((3.5, 4.4), 5), ((4.0, 5.0), 5), ((5.0, 8.0), 6))
@@ -39,16 +37,7 @@ ROOMS = (((3.0, 4.0), 4), ((3.5, 4.4), 5), ((4.0, 5.0), 5), ((5.0, 8.0), 6))
 
 
 def old_protocol_class() -> type:
-    root = Path(__file__).resolve().parent.parent
-    source = subprocess.run(
-        ["git", "show", f"{OLD_COMMIT}:ssga_bench/src/ssga_bench/protocol.py"], cwd=root, capture_output=True, text=True, check=True
-    ).stdout
-    spec = importlib.util.spec_from_loader("old_protocol", loader=None)
-    assert spec is not None
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module  # dataclasses look their module up there
-    exec(compile(source, f"{OLD_COMMIT}:protocol.py", "exec"), module.__dict__)  # noqa: S102 - this repository's own history
-    return module.Protocol
+    return module_at(OLD_COMMIT, "ssga_bench/src/ssga_bench/protocol.py", "old_protocol").Protocol
 
 
 def count(size: tuple[float, float], pieces: int, seed: int, cell_size: float, old: type) -> dict[str, int]:
