@@ -233,3 +233,18 @@ def check_installed(registry: Any, kind: str, name: str, cls: type, distribution
     assert entry.cls is cls
     assert entry.plugin.distribution == distribution
     assert get_plugin_manager().registry().get(kind, name) is cls
+
+
+def one_line_checkpoint_error(make: Callable[[], Any], *fragments: str) -> str:
+    """The :class:`~ssga_core.CheckpointError` that ``make()`` raises, checked: one line, each of ``fragments`` in it; its message."""
+    import pytest
+
+    from ssga_core.errors import CheckpointError
+
+    with pytest.raises(CheckpointError) as err:
+        make()
+    message = str(err.value)
+    assert "\n" not in message, message
+    for fragment in fragments:
+        assert fragment in message, message
+    return message

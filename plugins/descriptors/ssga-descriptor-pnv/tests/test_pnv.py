@@ -14,6 +14,7 @@ from ssga_descriptor_pnv.model import PatchNetVLAD
 from ssga_descriptor_pnv.plugin import LIGHT_WEIGHTS, WEIGHTS_DIR, Pnv, PnvConfig
 
 from ssga_bench import BoWConfig, checkpoint_bytes, validate_experiment
+from ssga_bench.testing import one_line_checkpoint_error
 from ssga_core import Camera, CheckpointError, ConfigError, InputError, Pose, View, resolve_stage
 from ssga_core.testing import check_descriptor, check_descriptor_in_all_orders, make_view
 
@@ -96,10 +97,9 @@ def test_random_weights_caveat_reaches_the_variant_label(ssga_installed_registry
 
 
 def test_a_missing_file_is_one_line_naming_the_field_and_the_file(tmp_path):
-    with pytest.raises(CheckpointError) as err:
-        Pnv(PnvConfig(weights=str(tmp_path / "absent.pth.tar")))
-    message = str(err.value)
-    assert "\n" not in message and "'weights'" in message and "absent.pth.tar" in message and "descriptor 'pnv'" in message
+    one_line_checkpoint_error(
+        lambda: Pnv(PnvConfig(weights=str(tmp_path / "absent.pth.tar"))), "'weights'", "absent.pth.tar", "descriptor 'pnv'"
+    )
 
 
 def test_a_corrupt_file_is_one_line(tmp_path):
@@ -124,10 +124,7 @@ def test_an_official_file_alone_names_its_network_and_sizes(tmp_path):
 
 def test_a_config_that_contradicts_the_file_is_one_line_naming_both(tmp_path):
     vgg = _checkpoint(tmp_path, PatchNetVLAD(VGG16_WIDTHS, 16, 512), "mapillary_WPCA512.pth.tar")
-    with pytest.raises(CheckpointError) as err:
-        Pnv(PnvConfig(weights=vgg, network="light"))
-    message = str(err.value)
-    assert "\n" not in message and "mapillary_WPCA512.pth.tar" in message
+    message = one_line_checkpoint_error(lambda: Pnv(PnvConfig(weights=vgg, network="light")), "mapillary_WPCA512.pth.tar")
     assert "config field network = 'light' contradicts config field 'weights'" in message and "holds the 'vgg16' layout" in message
     assert "the official Patch-NetVLAD releases" in message
     with pytest.raises(CheckpointError, match=r"num_pcs = 128 contradicts .* with num_pcs = 512; leave num_pcs out"):
@@ -140,10 +137,9 @@ def test_a_file_of_no_known_layout_names_the_closest_and_its_first_differences(t
     state["pool.conv.bias"] = torch.zeros(16)  # a VLAD v2 file: assignment bias
     path = tmp_path / "v2.pt"
     path.write_bytes(checkpoint_bytes({"state_dict": state}))
-    with pytest.raises(CheckpointError) as err:
-        Pnv(PnvConfig(weights=str(path)))
-    message = str(err.value)
-    assert "\n" not in message and "matches none of the layouts it loads ('light', 'vgg16')" in message
+    message = one_line_checkpoint_error(
+        lambda: Pnv(PnvConfig(weights=str(path))), "matches none of the layouts it loads ('light', 'vgg16')"
+    )
     assert "closest: 'light': 1 missing: WPCA.0.bias; 1 unexpected: pool.conv.bias" in message
     wrong_model = tmp_path / "resnet.pt"  # another network altogether
     wrong_model.write_bytes(checkpoint_bytes({"conv1.weight": torch.zeros(64, 3, 7, 7), "fc.weight": torch.zeros(10, 512)}))

@@ -15,6 +15,7 @@ from ssga_synthesizer_synsin.model import LightOptions, SynSinLight
 from ssga_synthesizer_synsin.plugin import LIGHT_WEIGHTS, WEIGHTS_DIR, SynSinConfig, SynSinSynthesizer
 
 from ssga_bench import checkpoint_bytes, validate_experiment
+from ssga_bench.testing import one_line_checkpoint_error
 from ssga_core import Camera, CheckpointError, InputError, Pose, View
 
 RANDOM = SynSinConfig(weights="random", device="cpu")
@@ -167,10 +168,9 @@ def test_radius_and_k_override_the_files(trained):
 
 
 def test_a_missing_file_is_one_line_naming_the_field_and_the_file(tmp_path):
-    with pytest.raises(CheckpointError) as err:
-        SynSinSynthesizer(SynSinConfig(weights=str(tmp_path / "absent.pth")))
-    message = str(err.value)
-    assert "\n" not in message and "'weights'" in message and "absent.pth" in message and "synthesizer 'synsin'" in message
+    one_line_checkpoint_error(
+        lambda: SynSinSynthesizer(SynSinConfig(weights=str(tmp_path / "absent.pth"))), "'weights'", "absent.pth", "synthesizer 'synsin'"
+    )
 
 
 def test_unreadable_files_are_one_line(tmp_path):
@@ -201,16 +201,15 @@ def test_mismatched_files_are_one_line(tmp_path):
     narrow = SynSinLight(LightOptions(depth_widths=(8, 16, 16, 16, 16)))
     path = tmp_path / "narrow.pt"
     path.write_bytes(checkpoint_bytes({"state_dict": narrow.state_dict()}))  # opts missing: read as the default widths
-    with pytest.raises(CheckpointError) as err:
-        SynSinSynthesizer(SynSinConfig(weights=str(path)))
-    message = str(err.value)
-    assert "\n" not in message and "'weights'" in message and "narrow.pt matches none of the layouts it loads ('light', 'synsin')" in message
+    message = one_line_checkpoint_error(
+        lambda: SynSinSynthesizer(SynSinConfig(weights=str(path))), "'weights'", "narrow.pt matches none of the layouts it loads ('light', 'synsin')"
+    )
     assert "closest: 'light': " in message and "wrong shape: pts_regressor.inc.weight (8, 5, 3, 3) (expected (16, 5, 3, 3))" in message
     path.write_bytes(checkpoint_bytes({"state_dict": SynSinLight().state_dict(), "opts": LightOptions().to_json()}))
-    with pytest.raises(CheckpointError) as err:
-        SynSinSynthesizer(SynSinConfig(weights=str(path), network="synsin"))  # a light file read as the official model
-    message = str(err.value)
-    assert "\n" not in message and "config field network = 'synsin' contradicts config field 'weights'" in message
+    message = one_line_checkpoint_error(
+        lambda: SynSinSynthesizer(SynSinConfig(weights=str(path), network="synsin")),  # a light file read as the official model
+        "config field network = 'synsin' contradicts config field 'weights'",
+    )
     assert "narrow.pt holds the 'light' layout (trained here on procedural homes" in message
     state = SynSinLight().state_dict()
     state["projector.extra.weight"] = torch.zeros(1)
