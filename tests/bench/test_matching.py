@@ -10,13 +10,15 @@ from ssga_core import InputError
 from ssga_core.data import SceneGraph
 
 
-def graph(*nodes) -> SceneGraph:
-    """A graph of the given node features (the whole image first)."""
+def graph(*nodes, parts_boxes=None) -> SceneGraph:
+    """A graph of the given node features (the whole image first) in a 100 x 50 image; its parts' boxes random by default."""
     features = np.asarray(nodes, dtype=np.float32)
     n = len(features)
-    return SceneGraph(
-        boxes=np.zeros((n, 4), np.float32), features=features, weights=np.ones(n, np.float32), edges=np.zeros((0, 2), np.int64)
-    )
+    if parts_boxes is None:
+        corner = np.random.default_rng(n).random((n - 1, 2)) * [80, 40]
+        parts_boxes = np.concatenate([corner, corner + [20, 10]], axis=1)
+    boxes = np.concatenate([[[0, 0, 100, 50]], np.reshape(parts_boxes, (n - 1, 4))]).astype(np.float32)
+    return SceneGraph(boxes=boxes, features=features, weights=np.ones(n, np.float32), edges=np.zeros((0, 2), np.int64))
 
 
 def unit(x):
@@ -24,23 +26,39 @@ def unit(x):
     return x / np.linalg.norm(x)
 
 
-def naive_similarity(query: SceneGraph, train: SceneGraph, whole_weight: float) -> float:
+def centre(box) -> np.ndarray:
+    """A part's box centre in a 100 x 50 image, in widths and heights."""
+    return np.array([(box[0] + box[2]) / 200, (box[1] + box[3]) / 100])
+
+
+def naive_similarity(query: SceneGraph, train: SceneGraph, whole_weight: float, layout_weight: float = 0.0, sigma: float = 0.3) -> float:
     """The docstring's rule, one pair at a time."""
     whole = float(unit(query.features[0]) @ unit(train.features[0]))
     if query.num_parts == 0 or train.num_parts == 0:
         return whole
+
+    def both_ways(pairs):
+        return (pairs.max(axis=1).mean() + pairs.max(axis=0).mean()) / 2
+
     pairs = np.array([[unit(a) @ unit(b) for b in train.features[1:]] for a in query.features[1:]])
-    parts = (pairs.max(axis=1).mean() + pairs.max(axis=0).mean()) / 2
+    nearness = np.array(
+        [
+            [np.exp(-np.sum((centre(a) - centre(b)) ** 2) / (2 * sigma**2)) for b in train.boxes[1:]]
+            for a in query.boxes[1:]
+        ]
+    )
+    parts = (1 - layout_weight) * both_ways(pairs) + layout_weight * both_ways(pairs * nearness)
     return whole_weight * whole + (1 - whole_weight) * parts
 
 
-def test_similarities_are_the_rule_written_out():
+@pytest.mark.parametrize(("whole_weight", "layout_weight", "sigma"), [(0.3, 0.0, 0.3), (0.3, 0.5, 0.3), (0.0, 1.0, 0.1)])
+def test_similarities_are_the_rule_written_out(whole_weight, layout_weight, sigma):
     rng = np.random.default_rng(3)
     train = [graph(*rng.random((1 + k, 6))) for k in (3, 0, 5, 1, 2)]
     queries = [graph(*rng.random((1 + k, 6))) for k in (4, 0, 2)]
-    matcher = GraphMatcher.of(train, [0, 1, 1, 2, 0], num_classes=4, whole_weight=0.3)
+    matcher = GraphMatcher.of(train, [0, 1, 1, 2, 0], 4, whole_weight, layout_weight, sigma)
     for q in queries:
-        expected = [naive_similarity(q, t, 0.3) for t in train]
+        expected = [naive_similarity(q, t, whole_weight, layout_weight, sigma) for t in train]
         np.testing.assert_allclose(matcher.similarities(q), expected, rtol=1e-5, atol=1e-6)
     # A class scores its best training graph; a class without one scores below every other.
     sims = matcher.class_similarities(queries)
@@ -64,16 +82,35 @@ def test_parts_decide_where_the_whole_images_tie():
     assert sims[0] == pytest.approx(sims[1])  # the whole image alone cannot tell them apart
 
 
+def test_parts_in_place_tell_apart_views_that_hold_the_same_things_elsewhere():
+    # Two headings of one corner see the same lamp and door, swapped left and right (the camera turned).
+    whole, lamp, door = [1, 1, 1, 1], [0, 0, 1, 0], [0, 0, 0, 1]
+    left, right = [5, 10, 35, 40], [65, 10, 95, 40]
+    lamp_left = graph(whole, lamp, door, parts_boxes=[left, right])
+    lamp_right = graph(whole, lamp, door, parts_boxes=[right, left])
+    query = graph([1, 1, 0.9, 1], lamp, door, parts_boxes=[[10, 10, 40, 40], [60, 10, 90, 40]])  # the lamp on the left
+    anywhere = GraphMatcher.of([lamp_left, lamp_right], [0, 1], 2, whole_weight=0.0)
+    sims = anywhere.class_similarities([query])[0]
+    assert sims[0] == pytest.approx(sims[1])  # matched wherever they stand, the parts cannot tell the headings apart
+    in_place = GraphMatcher.of([lamp_left, lamp_right], [0, 1], 2, whole_weight=0.0, layout_weight=0.5)
+    assert in_place.predict([query]).argmax() == 0
+    sims = in_place.class_similarities([query])[0]
+    assert sims[0] > sims[1] + 0.1
+
+
 def test_the_saved_state_scores_the_same_and_a_broken_one_is_refused():
     rng = np.random.default_rng(0)
     train = [graph(*rng.random((1 + k, 5))) for k in (2, 3, 0)]
-    matcher = GraphMatcher.of(train, [2, 0, 1], num_classes=3, whole_weight=0.25)
+    matcher = GraphMatcher.of(train, [2, 0, 1], 3, whole_weight=0.25, layout_weight=0.5, layout_sigma=0.2)
     query = [graph(*rng.random((4, 5)))]
     again = GraphMatcher.from_state(matcher.state_dict())
     np.testing.assert_array_equal(again.predict(query), matcher.predict(query))
     state = matcher.state_dict()
-    with pytest.raises(InputError, match="saved state without 'node_ptr'"):
-        GraphMatcher.from_state({k: v for k, v in state.items() if k != "node_ptr"})
+    for field in ("node_ptr", "centres", "layout_weight"):
+        with pytest.raises(InputError, match=f"saved state without '{field}'"):
+            GraphMatcher.from_state({k: v for k, v in state.items() if k != field})
+    with pytest.raises(InputError, match="do not fit together"):
+        GraphMatcher.from_state({**state, "centres": state["centres"][:-1]})
     with pytest.raises(InputError, match="do not fit together"):
         GraphMatcher.from_state({**state, "node_ptr": state["node_ptr"][:-1]})
     with pytest.raises(InputError, match="classes in 0..2"):

@@ -65,6 +65,20 @@ class TrainingConfig(Strict):
         le=1.0,
         description="classifier = 'graph-match': the whole image's share of a match; the parts' is the rest.",
     )
+    match_layout: float = Field(
+        default=0.0,
+        ge=0.0,
+        le=1.0,
+        description="classifier = 'graph-match': the share of the part match that weighs each pair of parts by how near they "
+        "stand in their images (parts in place); the rest matches parts wherever they stand.",
+    )
+    layout_sigma: float = Field(
+        default=0.3,
+        gt=0.0,
+        le=10.0,
+        description="classifier = 'graph-match', match_layout > 0: how far apart two parts may stand and still count as in place "
+        "(a Gaussian's sigma, in image widths and heights).",
+    )
     hidden: int = Field(default=256, gt=0, le=8192, description="Hidden width of the GCN.")
     layers: int = Field(default=2, ge=1, le=32, description="Graph-convolution layers.")
     dropout: float = Field(default=0.0, ge=0.0, lt=1.0, description="Dropout on the hidden node states and on the pooled state.")

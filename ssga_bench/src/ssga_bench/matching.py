@@ -9,9 +9,15 @@ training graphs. A query graph is compared with every training graph:
   averaged. A part that survives a change of viewpoint still finds its twin, whatever
   the other parts do; pooled into one vector (a mean, a GCN's readout) the parts repeat
   the whole image instead (cosine 0.99 between the two on the bench).
+* **parts in place** (``layout_weight`` of the part match): the same, with each pair's
+  cosine weighed by how near the two parts stand in their images, a Gaussian of the
+  distance between their box centres (in image widths and heights, ``layout_sigma``).
+  Where a thing stands in the view says where the camera is and where it looks, which
+  a match anywhere in the image, and the whole image's bag of words, cannot see: most
+  errors are a neighbouring cell looking the same way.
 
 The similarity of two graphs is ``whole_weight`` times the first plus the rest times the
-second (the whole image alone where either graph has no part), and a class scores the
+part match (the whole image alone where either graph has no part), and a class scores the
 best similarity of its training graphs, turned into probabilities by a softmax at
 :data:`TEMPERATURE`. Nothing is learned beyond the training graphs themselves, so
 nothing can fit a synthesis artefact the way a classifier does; the
@@ -36,55 +42,114 @@ def _unit(x: np.ndarray) -> np.ndarray:
     return normalise_rows(np.asarray(x, np.float32), "l2")
 
 
+def part_centres(graph: SceneGraph) -> np.ndarray:
+    """``(nodes, 2)`` each node's box centre in its image, in widths and heights from the whole image's corner."""
+    whole = graph.boxes[0]
+    size = np.maximum(whole[2:] - whole[:2], 1e-6)
+    return (((graph.boxes[:, :2] + graph.boxes[:, 2:]) / 2 - whole[:2]) / size).astype(np.float32)
+
+
 class GraphMatcher:
     """Class scores of query graphs by their best match among the training graphs.
 
     Args:
         features: ``(nodes, dim)`` every training graph's node features, graph after graph,
             scaled to unit length (:meth:`of` scales them).
+        centres: ``(nodes, 2)`` each node's :func:`part_centres`.
         node_ptr: ``(graphs + 1,)`` where each graph's nodes start (its whole image first).
         labels: ``(graphs,)`` each training graph's class.
     """
 
-    def __init__(self, features: np.ndarray, node_ptr: np.ndarray, labels: np.ndarray, num_classes: int, whole_weight: float) -> None:
+    def __init__(
+        self,
+        features: np.ndarray,
+        centres: np.ndarray,
+        node_ptr: np.ndarray,
+        labels: np.ndarray,
+        num_classes: int,
+        whole_weight: float,
+        layout_weight: float = 0.0,
+        layout_sigma: float = 0.3,
+    ) -> None:
         node_ptr, labels = np.asarray(node_ptr, np.int64), np.asarray(labels, np.int64)
-        if features.ndim != 2 or node_ptr.ndim != 1 or len(node_ptr) != len(labels) + 1 or node_ptr[-1] != len(features):
+        if (
+            features.ndim != 2
+            or centres.shape != (len(features), 2)
+            or node_ptr.ndim != 1
+            or len(node_ptr) != len(labels) + 1
+            or node_ptr[-1] != len(features)
+        ):
             raise InputError(
-                f"graph matcher: {features.shape} node features, {node_ptr.shape} graph offsets and {labels.shape} labels do not fit together"
+                f"graph matcher: {features.shape} node features, {centres.shape} node centres, {node_ptr.shape} graph offsets "
+                f"and {labels.shape} labels do not fit together"
             )
         if not len(labels) or labels.min() < 0 or labels.max() >= num_classes:
             raise InputError(f"graph matcher: needs training graphs with classes in 0..{num_classes - 1}")
-        self.features, self.node_ptr, self.labels = np.asarray(features, np.float32), node_ptr, labels
+        if layout_sigma <= 0:
+            raise InputError(f"graph matcher: layout_sigma must be positive, got {layout_sigma}")
+        self.features, self.centres = np.asarray(features, np.float32), np.asarray(centres, np.float32)
+        self.node_ptr, self.labels = node_ptr, labels
         self.num_classes, self.whole_weight = num_classes, whole_weight
+        self.layout_weight, self.layout_sigma = layout_weight, layout_sigma
         starts, counts = node_ptr[:-1], np.diff(node_ptr)
         self._whole = self.features[starts]
-        self._parts = np.concatenate([self.features[s + 1 : s + n] for s, n in zip(starts, counts)]) if len(self.features) else self.features
+        is_part = np.ones(len(self.features), bool)
+        is_part[starts[counts > 0]] = False
+        self._parts, self._part_centres = self.features[is_part], self.centres[is_part]
         self._part_counts = counts - 1
         has = self._part_counts > 0
         self._with_parts = np.flatnonzero(has)
         self._part_starts = np.concatenate([[0], np.cumsum(self._part_counts)[:-1]])[has]
 
     @classmethod
-    def of(cls, graphs: Sequence[SceneGraph], labels: Sequence[int], num_classes: int, whole_weight: float) -> GraphMatcher:
+    def of(
+        cls,
+        graphs: Sequence[SceneGraph],
+        labels: Sequence[int],
+        num_classes: int,
+        whole_weight: float,
+        layout_weight: float = 0.0,
+        layout_sigma: float = 0.3,
+    ) -> GraphMatcher:
         node_ptr = np.concatenate([[0], np.cumsum([g.num_nodes for g in graphs])])
         features = _unit(np.concatenate([g.features for g in graphs])) if graphs else np.zeros((0, 1), np.float32)
-        return cls(features, node_ptr, np.asarray(labels), num_classes, whole_weight)
+        centres = np.concatenate([part_centres(g) for g in graphs]) if graphs else np.zeros((0, 2), np.float32)
+        return cls(features, centres, node_ptr, np.asarray(labels), num_classes, whole_weight, layout_weight, layout_sigma)
 
     def state_dict(self) -> dict[str, np.ndarray]:
         return {
             "features": self.features,
+            "centres": self.centres,
             "node_ptr": self.node_ptr,
             "labels": self.labels,
             "num_classes": np.array(self.num_classes),
             "whole_weight": np.array(self.whole_weight),
+            "layout_weight": np.array(self.layout_weight),
+            "layout_sigma": np.array(self.layout_sigma),
         }
 
     @classmethod
     def from_state(cls, state: Mapping[str, np.ndarray]) -> GraphMatcher:
         try:
-            return cls(state["features"], state["node_ptr"], state["labels"], int(state["num_classes"]), float(state["whole_weight"]))
+            return cls(
+                state["features"],
+                state["centres"],
+                state["node_ptr"],
+                state["labels"],
+                int(state["num_classes"]),
+                float(state["whole_weight"]),
+                float(state["layout_weight"]),
+                float(state["layout_sigma"]),
+            )
         except KeyError as exc:
             raise InputError(f"graph matcher: saved state without {exc}") from None
+
+    def _both_ways(self, pairs: np.ndarray) -> np.ndarray:
+        """``(training graphs with parts,)``: from ``(query parts, every training part)`` similarities, each query part's
+        best twin in each training graph and each training part's in the query, both means averaged."""
+        query_to_train = np.maximum.reduceat(pairs, self._part_starts, axis=1).mean(axis=0)
+        train_to_query = np.add.reduceat(pairs.max(axis=0), self._part_starts) / self._part_counts[self._with_parts]
+        return (query_to_train + train_to_query) / 2
 
     def similarities(self, graph: SceneGraph) -> np.ndarray:
         """``(training graphs,)``: how well ``graph`` matches each training graph."""
@@ -94,13 +159,13 @@ class GraphMatcher:
         if not len(parts) or not len(self._with_parts):
             return similarity
         pairs = parts @ self._parts.T  # (query parts, every training part)
-        # Each query part's best twin in each training graph, and each training part's in the query.
-        query_to_train = np.maximum.reduceat(pairs, self._part_starts, axis=1).mean(axis=0)
-        train_to_query = np.add.reduceat(pairs.max(axis=0), self._part_starts) / self._part_counts[self._with_parts]
+        part_match = self._both_ways(pairs)
+        if self.layout_weight > 0:
+            offset = part_centres(graph)[1:, None, :] - self._part_centres[None]
+            nearness = np.exp(-(offset**2).sum(axis=-1) / np.float32(2 * self.layout_sigma**2))
+            part_match = (1 - self.layout_weight) * part_match + self.layout_weight * self._both_ways(pairs * nearness)
         matched = similarity.copy()
-        matched[self._with_parts] = self.whole_weight * similarity[self._with_parts] + (1 - self.whole_weight) * (
-            query_to_train + train_to_query
-        ) / 2
+        matched[self._with_parts] = self.whole_weight * similarity[self._with_parts] + (1 - self.whole_weight) * part_match
         return matched
 
     def class_similarities(self, graphs: Sequence[SceneGraph]) -> np.ndarray:
