@@ -163,8 +163,8 @@ class ProtocolSampling(ProtocolGeometry):
                 tests.append(dataclasses.replace(sample, id=sample.id.replace("test", split, 1), split=split) if split != "test" else sample)
                 counts[place] += 1
                 levels[sample.level] += 1
-            if progress is not None:
-                progress(len(tests), wanted)
+            if progress is not None:  # a level's quota can draw past the classes' share: the total grows with it
+                progress(len(tests), max(wanted, len(tests)))
         missing = int((per_class - counts).clip(0).sum())
         if missing:
             raise InputError(
