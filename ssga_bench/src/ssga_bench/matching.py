@@ -151,7 +151,7 @@ class GraphMatcher:
         """``(parts, 4)`` rows whose products with ``self._train_in_place`` are ``-|c - t|^2 / (2 sigma^2)``, the
         exponent of the nearness of a query part at ``c`` and a training part at ``t``: expanded into
         ``c.t / sigma^2 - |c|^2 / 2 sigma^2 - |t|^2 / 2 sigma^2``, one matrix product instead of a pass over every
-        pair for each term (3.6x faster scoring of a query with 37 parts against 54,000)."""
+        pair for each term (a query of 37 parts against 54,000 training parts: 33.6 ms written out, 8.9 ms so; one thread)."""
         scale = np.float32(1 / self.layout_sigma**2)
         squared = -0.5 * scale * (centres**2).sum(axis=1, keepdims=True)
         return np.concatenate([centres * scale, squared, np.ones_like(squared)], axis=1)
