@@ -40,6 +40,7 @@ _EXPORTS = {
     "file_stamp": "ssga_bench.learned",
     "read_layout": "ssga_bench.learned",
     "meta_shapes": "ssga_bench.learned",
+    "seeded": "ssga_bench.learned",
     "tensor_state": "ssga_bench.learned",
     "checkpoint_bytes": "ssga_bench.learned",
     "resolve_device": "ssga_bench.learned",

@@ -101,8 +101,13 @@ class Learned:
 
     reloaded: ClassVar[tuple[str, ...]] = ()
     """The attributes ``self._load()`` returns, in order (the network, and what comes with it):
-    a stage pickled for a worker process leaves them out, and the worker loads its own copy,
+    they load when the stage is made (a bad ``weights`` file is reported before any work); a
+    stage pickled for a worker process leaves them out, and the worker loads its own copy,
     from the file or from the same seed, instead of receiving a network through a pipe."""
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self._set_reloaded()
 
     def __getstate__(self) -> dict[str, Any]:
         state = self.__dict__.copy()
@@ -112,6 +117,10 @@ class Learned:
 
     def __setstate__(self, state: dict[str, Any]) -> None:
         self.__dict__.update(state)
+        self._set_reloaded()
+
+    def _set_reloaded(self) -> None:
+        """Set the :attr:`reloaded` attributes from ``self._load()`` (nothing, for a stage without them)."""
         if self.reloaded:
             loaded = self._load()  # type: ignore[attr-defined]
             for name, value in zip(self.reloaded, loaded if len(self.reloaded) > 1 else (loaded,), strict=True):
@@ -151,16 +160,53 @@ class Learned:
         return f"{cls.kind} {cls.name!r} runs the weights trained here on {cls.trained_on} homes ({path.name}), not on views like this {workspace!r} workspace's"
 
     @property
+    def who(self) -> str:
+        """The stage as its errors name it: ``parser 'detic'``."""
+        return f"{self.kind} {self.name!r}"
+
+    @property
     def random_weights(self) -> bool:
         return self.config.weights == RANDOM_WEIGHTS
 
     @property
     def device(self) -> torch.device:
-        return resolve_device(self.config.device, f"{self.kind} {self.name!r}")
+        return resolve_device(self.config.device, self.who)
 
     def weights_file(self) -> Path:
         """The checkpoint ``config.weights`` names (it must exist), looked up in :attr:`packaged_weights` first."""
-        return find_weights(self.config.weights, self.packaged_weights, f"{self.kind} {self.name!r}")
+        return find_weights(self.config.weights, self.packaged_weights, self.who)
+
+    def load_network(
+        self,
+        settings: tuple[Any, ...],
+        random: Callable[[], tuple[torch.nn.Module, dict[str, Any]]],
+        from_file: Callable[[Path], tuple[torch.nn.Module, dict[str, Any]]],
+        *,
+        find: Callable[[], Path] | None = None,
+        files: Callable[[Path], Sequence[Path]] | None = None,
+    ) -> tuple[torch.nn.Module, Path | None]:
+        """The network the weights hold, on :attr:`device` in eval mode, and where they are (``None``: random weights).
+
+        ``find()`` (default :meth:`weights_file`) is where ``config.weights`` points;
+        ``from_file(path)`` reads it, ``random()`` builds the random-weights network instead.
+        Each returns the network and the config fields its weights imply (its ``network``,
+        sizes read from the file: :func:`read_layout`'s), which ``self.config`` gets. The
+        network is made once per process (:meth:`once_per_process`) for the same weights
+        (the :func:`file_stamp` of ``files(path)``, default the path itself), ``settings``
+        (the config fields that build it, as given: a field set against the file must
+        still fail) and device.
+        """
+        device = self.device
+        path = None if self.random_weights else (find or self.weights_file)().resolve()
+
+        def load() -> tuple[torch.nn.Module, dict[str, Any]]:
+            net, fields = random() if path is None else from_file(path)
+            return net.to(device).eval(), fields
+
+        stamps = (RANDOM_WEIGHTS,) if path is None else tuple(file_stamp(f) for f in (files(path) if files else (path,)))
+        net, fields = self.once_per_process((*stamps, *settings, str(device)), load)
+        self.config = self.config.model_copy(update=fields)
+        return net, path
 
 
 _LOADED: dict[tuple[Any, ...], Any] = {}
@@ -300,6 +346,16 @@ def read_layout(
     _, closest, problems = min(tried, key=lambda t: t[0])
     names = ", ".join(repr(layout.name) for layout in layouts)
     raise CheckpointError(f"{who}: config field 'weights': {path} matches none of the layouts it loads ({names}); closest: {closest.name!r}: {problems}")
+
+
+def seeded(build: Callable[[], T]) -> T:
+    """``build()`` with torch's generator seeded with :data:`RANDOM_SEED` (and restored after): random
+    weights, the same network in every process."""
+    import torch
+
+    with torch.random.fork_rng(devices=[]):
+        torch.manual_seed(RANDOM_SEED)
+        return build()
 
 
 def meta_shapes(build: Callable[[], torch.nn.Module]) -> dict[str, tuple[int, ...]]:

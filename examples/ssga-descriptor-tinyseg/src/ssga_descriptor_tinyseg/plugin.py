@@ -30,12 +30,8 @@ class TinySeg(Learned, RegionDescriptor):
     name = "tinyseg"
     abbrev = "TS"
     Config = TinySegConfig
-    reloaded = ("net",)  # a worker process loads its own copy instead of receiving it through a pipe
+    reloaded = ("net",)  # self._load() when the stage is made; a worker process loads its own copy instead of receiving it
     dim = CLASSES
-
-    def __init__(self, config: TinySegConfig | None = None) -> None:
-        super().__init__(config)
-        self.net = self._load()
 
     def _load(self):
         import torch

@@ -200,10 +200,6 @@ class CnnRrf(Learned, RegionDescriptor):
         """The cache file the classifier was written to or loaded from (``None``: not cached)."""
 
     @property
-    def who(self) -> str:
-        return f"{self.kind} {self.name!r}"
-
-    @property
     def classes(self) -> np.ndarray:
         """The place classes of the classifier's outputs, in output order (ascending): column ``i`` of every feature is class ``classes[i]``."""
         if self._classes is None:

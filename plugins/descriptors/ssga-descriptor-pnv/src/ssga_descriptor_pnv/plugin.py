@@ -25,8 +25,8 @@ from pydantic import Field, model_validator
 
 from ssga_core import Descriptor, InputError, LocalFeatures, View, hookimpl
 from ssga_bench import (
-    RANDOM_SEED, RANDOM_WEIGHTS, BoWDescriptor, BoWDescriptorConfig, Layout, Learned, LearnedConfig, file_stamp,
-    load_checkpoint, load_strict, meta_shapes, network_calls, network_field, read_layout, tensor_state, weights_field,
+    BoWDescriptor, BoWDescriptorConfig, Layout, Learned, LearnedConfig, load_checkpoint, load_strict, meta_shapes,
+    network_calls, network_field, read_layout, seeded, tensor_state, weights_field,
 )
 from ssga_descriptor_pnv.layout import LIGHT_WIDTHS, STRIDE, VGG16_WIDTHS, patch_grid
 
@@ -104,39 +104,18 @@ class Pnv(Learned, BoWDescriptor):
         "pittsburgh": {"weights": "pittsburgh_WPCA512.pth.tar"},
     }
 
-    def __init__(self, config: PnvConfig | None = None) -> None:
-        super().__init__(config)
-        self.net = self._load()
-
-    @property
-    def who(self) -> str:
-        return f"{self.kind} {self.name!r}"
-
     def _load(self) -> PatchNetVLAD:
         """The network, once per process per file; ``self.config`` gets the file's ``network`` and ``num_pcs``."""
         cfg: PnvConfig = self.config  # type: ignore[assignment]
-        device = self.device
-        path = None if self.random_weights else self.weights_file().resolve()
-
-        def load() -> tuple[PatchNetVLAD, dict[str, Any]]:
-            net, fields = self._random() if path is None else self._from_file(path)
-            return net.to(device).eval(), fields
-
-        shape = (cfg.network, cfg.num_pcs, cfg.patch_size, cfg.stride, str(device))
-        net, fields = self.once_per_process((RANDOM_WEIGHTS if path is None else file_stamp(path), *shape), load)
-        self.config = cfg.model_copy(update=fields)
-        return net
+        net, _ = self.load_network((cfg.network, cfg.num_pcs, cfg.patch_size, cfg.stride), self._random, self._from_file)
+        return net  # type: ignore[return-value]
 
     def _random(self) -> tuple[PatchNetVLAD, dict[str, Any]]:
-        import torch
-
         from ssga_descriptor_pnv.model import PatchNetVLAD
 
         cfg: PnvConfig = self.config  # type: ignore[assignment]
         fields = {"network": cfg.network or RANDOM_NETWORK, "num_pcs": cfg.num_pcs or RANDOM_PCS}
-        with torch.random.fork_rng(devices=[]):
-            torch.manual_seed(RANDOM_SEED)
-            return PatchNetVLAD(NETWORKS[fields["network"]], RANDOM_CLUSTERS, fields["num_pcs"], cfg.patch_size, cfg.stride), fields
+        return seeded(lambda: PatchNetVLAD(NETWORKS[fields["network"]], RANDOM_CLUSTERS, fields["num_pcs"], cfg.patch_size, cfg.stride)), fields
 
     def _from_file(self, path: Path) -> tuple[PatchNetVLAD, dict[str, Any]]:
         from ssga_descriptor_pnv.model import PatchNetVLAD

@@ -29,8 +29,8 @@ from pydantic import Field, model_validator
 
 from ssga_core import CheckpointError, Data, InputError, MissingWeightsError, Parser, Regions, View, boxes_from_labels, hookimpl
 from ssga_bench import (
-    RANDOM_SEED, RANDOM_WEIGHTS, Layout, Learned, LearnedConfig, file_stamp, load_checkpoint, load_strict, meta_shapes,
-    network_calls, network_field, read_layout, tensor_state, weights_field,
+    RANDOM_SEED, Layout, Learned, LearnedConfig, load_checkpoint, load_strict, meta_shapes, network_calls, network_field,
+    read_layout, tensor_state, weights_field,
 )
 from ssga_parser_cascade_seg.classes import VOCABULARIES
 
@@ -167,17 +167,12 @@ class CascadeSeg(Learned, Parser):
 
     def __init__(self, config: CascadeSegConfig | None = None) -> None:
         super().__init__(config)
-        self.net = self._load()
         cfg: CascadeSegConfig = self.config  # type: ignore[assignment]  # now with the weights' network and classes
         self.class_names: tuple[str, ...] = VOCABULARIES[cfg.classes]  # type: ignore[index]
         problem = unknown_class(cfg.ignore_classes, self.class_names, f"classes = {cfg.classes!r}, the vocabulary of config field 'weights' = {cfg.weights!r}")
         if problem:
             raise CheckpointError(f"{self.who}: config field 'ignore_classes': {problem}")
         self._ignored = np.array([self.class_names.index(n) for n in cfg.ignore_classes], dtype=np.int64)
-
-    @property
-    def who(self) -> str:
-        return f"{self.kind} {self.name!r}"
 
     # ------------------------------------------------------------------ loading
 
@@ -201,17 +196,10 @@ class CascadeSeg(Learned, Parser):
     def _load(self):  # -> SceneParser
         """The network, once per process per folder; ``self.config`` gets the files' ``network`` and ``classes``."""
         cfg: CascadeSegConfig = self.config  # type: ignore[assignment]
-        device = self.device
-        folder = None if self.random_weights else self.weights_folder().resolve()
-
-        def load():  # -> (SceneParser, fields)
-            net, fields = self._random() if folder is None else self._from_folder(folder)
-            return net.to(device).eval(), fields
-
-        files = (RANDOM_WEIGHTS,) if folder is None else tuple(file_stamp(folder / name) for name in FILES.values())
-        shape = (cfg.network, cfg.classes, str(device))  # as given: a field set against the files must still fail
-        net, fields = self.once_per_process((*files, *shape), load)
-        self.config = cfg.model_copy(update=fields)
+        net, _ = self.load_network(
+            (cfg.network, cfg.classes), self._random, self._from_folder,
+            find=self.weights_folder, files=lambda folder: [folder / name for name in FILES.values()],
+        )  # fmt: skip
         return net
 
     def _random(self):  # -> (SceneParser, fields)

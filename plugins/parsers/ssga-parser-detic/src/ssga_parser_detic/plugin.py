@@ -104,14 +104,6 @@ class DeticParser(Learned, Parser):
         "all-classes": {"one_class_per_proposal": False},
     }
 
-    def __init__(self, config: DeticConfig | None = None) -> None:
-        super().__init__(config)
-        self.net, self.names = self._load()
-
-    @property
-    def who(self) -> str:
-        return f"{self.kind} {self.name!r}"
-
     @property
     def settings(self) -> Settings:
         from ssga_parser_detic.model import Settings

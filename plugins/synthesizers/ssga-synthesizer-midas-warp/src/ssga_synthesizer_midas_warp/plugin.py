@@ -29,7 +29,7 @@ from pydantic import Field, model_validator
 
 from ssga_core import Data, Pose, Synthesis, Synthesizer, View, hookimpl
 from ssga_bench import (
-    RANDOM_SEED, RANDOM_WEIGHTS, Layout, Learned, LearnedConfig, file_stamp, load_checkpoint, load_strict, meta_shapes,
+    RANDOM_SEED, Layout, Learned, LearnedConfig, file_stamp, load_checkpoint, load_strict, meta_shapes,
     network_field, read_layout, tensor_state, weights_field,
 )
 from ssga_synthesizer_depth_warp.plugin import DepthWarp, DepthWarpConfig
@@ -115,25 +115,14 @@ class MidasWarp(Learned, DepthWarp):
         self._estimated: weakref.WeakKeyDictionary[View, View] = weakref.WeakKeyDictionary()
         self._estimate_lock = threading.Lock()
 
-    @property
-    def who(self) -> str:
-        return f"{self.kind} {self.name!r}"
-
     # ------------------------------------------------------------------ loading
 
     def _load(self) -> tuple[Any, Calibration | None]:
         """The network, once per process per file, and its calibration; ``self.config`` gets the file's ``network``
         first, which the calibration is checked against."""
         cfg: MidasWarpConfig = self.config  # type: ignore[assignment]
-        device = self.device
-        path = None if self.random_weights else self.weights_file().resolve()
-
-        def load() -> tuple[Any, dict[str, Any], str]:
-            net, fields = self._random() if path is None else self._from_file(path)
-            return net.to(device).eval(), fields, "" if path is None else sha256_file(path)
-
-        net, fields, sha = self.once_per_process((RANDOM_WEIGHTS if path is None else file_stamp(path), cfg.network, str(device)), load)
-        self.config = cfg.model_copy(update=fields)
+        net, path = self.load_network((cfg.network,), self._random, self._from_file)
+        sha = "" if path is None else self.once_per_process(("sha256", file_stamp(path)), lambda: sha256_file(path))
         return net, self._calibration(path, sha)
 
     def _random(self) -> tuple[Any, dict[str, Any]]:

@@ -27,8 +27,8 @@ import numpy as np
 from pydantic import Field
 
 from ssga_bench import (
-    RANDOM_SEED, RANDOM_WEIGHTS, Layout, Learned, LearnedConfig, file_stamp, load_checkpoint, load_strict, meta_shapes,
-    network_field, read_layout, tensor_state, weights_field,
+    Layout, Learned, LearnedConfig, load_checkpoint, load_strict, meta_shapes, network_field, read_layout, seeded,
+    tensor_state, weights_field,
 )
 from ssga_core import CheckpointError, Data, InputError, Pose, Synthesis, Synthesizer, View, hookimpl
 
@@ -112,14 +112,6 @@ class SynSinSynthesizer(Learned, Synthesizer):
         "mp3d": {"weights": OFFICIAL_WEIGHTS},
     }
 
-    def __init__(self, config: SynSinConfig | None = None) -> None:
-        super().__init__(config)
-        self.net = self._load()
-
-    @property
-    def who(self) -> str:
-        return f"{self.kind} {self.name!r}"
-
     @property
     def options(self) -> RenderOptions:
         """The renderer settings: the network's, with the config's overrides."""
@@ -133,25 +125,13 @@ class SynSinSynthesizer(Learned, Synthesizer):
     def _load(self) -> torch.nn.Module:
         """The network, once per process per file; ``self.config`` gets the file's ``network``."""
         cfg: SynSinConfig = self.config  # type: ignore[assignment]
-        device = self.device
-        path = None if self.random_weights else self.weights_file().resolve()
-
-        def load() -> tuple[torch.nn.Module, dict[str, Any]]:
-            net, fields = self._random() if path is None else self._from_file(path)
-            return net.to(device).eval(), fields
-
-        net, fields = self.once_per_process((RANDOM_WEIGHTS if path is None else file_stamp(path), cfg.network, str(device)), load)
-        self.config = cfg.model_copy(update=fields)
+        net, _ = self.load_network((cfg.network,), self._random, self._from_file)
         return net
 
     def _random(self) -> tuple[torch.nn.Module, dict[str, Any]]:
-        import torch
-
         cfg: SynSinConfig = self.config  # type: ignore[assignment]
         fields = {"network": cfg.network or RANDOM_NETWORK}
-        with torch.random.fork_rng(devices=[]):
-            torch.manual_seed(RANDOM_SEED)
-            return self._network(fields["network"], None), fields
+        return seeded(lambda: self._network(fields["network"], None)), fields
 
     def _from_file(self, path: Path) -> tuple[torch.nn.Module, dict[str, Any]]:
         import torch
