@@ -56,6 +56,7 @@ _EXPORTS = {
     "export_checkpoint": "ssga_bench.training",
     "cosine_lr": "ssga_bench.training",
     "poly_lr": "ssga_bench.training",
+    "photometric_jitter": "ssga_bench.training",
     "evaluation_main": "ssga_bench.training",
     # training views of homes, rendered once per home
     "ArrayRecord": "ssga_bench.training_data",

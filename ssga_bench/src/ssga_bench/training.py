@@ -81,6 +81,15 @@ def poly_lr(peak: float, step: int, steps: int, power: float = 0.9) -> float:
     return peak * (1 - step / steps) ** power
 
 
+def photometric_jitter(images: np.ndarray, rng: np.random.Generator, jitter: float) -> np.ndarray:
+    """``(N, H, W, 3)`` images in [0, 1] under random photometric jitter, clipped to [0, 1]: per image a
+    gain within ``1 +- jitter`` times a per-channel gain within ``1 +- jitter / 3``, and an offset
+    within ``+- jitter / 2`` (drawn from ``rng`` in that order)."""
+    n = len(images)
+    gain = rng.uniform(1 - jitter, 1 + jitter, (n, 1, 1, 1)) * rng.uniform(1 - jitter / 3, 1 + jitter / 3, (n, 1, 1, 3))
+    return np.clip(images * gain + rng.uniform(-jitter / 2, jitter / 2, (n, 1, 1, 1)), 0.0, 1.0)
+
+
 class TrainingRun:
     """A training command's folder ``out``: its config (a rerun with another one is refused,
     so a resumed run never mixes two), the seconds spent per phase (kept across resumes),

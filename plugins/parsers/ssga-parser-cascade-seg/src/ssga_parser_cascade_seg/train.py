@@ -43,7 +43,7 @@ import torch
 import torch.nn.functional as F
 
 from ssga_core import InputError
-from ssga_bench import TrainingRun, atomic_write_bytes, checkpoint_bytes, poly_lr, training_main, write_json
+from ssga_bench import TrainingRun, atomic_write_bytes, checkpoint_bytes, photometric_jitter, poly_lr, training_main, write_json
 from ssga_bench import training_log as log
 from ssga_parser_cascade_seg.classes import PROCEDURAL
 from ssga_parser_cascade_seg.evaluate import evaluate
@@ -211,8 +211,7 @@ def _batch(data: Labelled, rng: np.random.Generator, batch: int, size: int, scal
             rgb, lab = rgb[:, ::-1], lab[:, ::-1]
         images[i, : rgb.shape[0], : rgb.shape[1]] = rgb / 255.0
         labels[i, : lab.shape[0], : lab.shape[1]] = lab
-    gain = rng.uniform(1 - jitter, 1 + jitter, (batch, 1, 1, 1)) * rng.uniform(1 - jitter / 3, 1 + jitter / 3, (batch, 1, 1, 3))
-    images = np.clip(images * gain + rng.uniform(-jitter / 2, jitter / 2, (batch, 1, 1, 1)), 0.0, 1.0)
+    images = photometric_jitter(images, rng, jitter)
     images = (images - np.asarray(MEAN, np.float32)) / np.asarray(STD, np.float32)
     return torch.from_numpy(np.ascontiguousarray(images.transpose(0, 3, 1, 2), dtype=np.float32)), torch.from_numpy(labels)
 

@@ -44,7 +44,7 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from ssga_bench import TrainingRun, atomic_write_bytes, checkpoint_bytes, cosine_lr, training_main
+from ssga_bench import TrainingRun, atomic_write_bytes, checkpoint_bytes, cosine_lr, photometric_jitter, training_main
 from ssga_bench import training_log as log
 from ssga_synthesizer_midas_warp.calibrate import calibrate
 from ssga_synthesizer_midas_warp.calibration import calibration_path, sha256_file
@@ -230,13 +230,10 @@ def _resized(rgb: np.ndarray, inverse: np.ndarray, size: int) -> tuple[np.ndarra
 
 def _batch(rgb: np.ndarray, inverse: np.ndarray, rng: np.random.Generator, jitter: float) -> tuple[torch.Tensor, torch.Tensor]:
     """Normalised network input and target inverse depth, with random flips and photometric jitter."""
-    n = len(rgb)
-    x = rgb.astype(np.float32) / 255.0
-    gain = rng.uniform(1 - jitter, 1 + jitter, (n, 1, 1, 1)) * rng.uniform(1 - jitter / 3, 1 + jitter / 3, (n, 1, 1, 3))
-    x = np.clip(x * gain + rng.uniform(-jitter / 2, jitter / 2, (n, 1, 1, 1)), 0.0, 1.0)
+    x = photometric_jitter(rgb.astype(np.float32) / 255.0, rng, jitter)
     x = (x - np.asarray(MEAN, np.float32)) / np.asarray(STD, np.float32)
     y = inverse.copy()
-    flip = rng.random(n) < 0.5
+    flip = rng.random(len(rgb)) < 0.5
     x[flip], y[flip] = x[flip, :, ::-1], y[flip, :, ::-1]
     return torch.from_numpy(np.ascontiguousarray(x.transpose(0, 3, 1, 2), dtype=np.float32)), torch.from_numpy(np.ascontiguousarray(y))
 
