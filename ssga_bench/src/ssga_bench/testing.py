@@ -10,6 +10,7 @@
 * :func:`network_inputs` and :func:`whole_batches_on_cpu`: what a learned stage's network
   was called with, and its batched path made to run on the CPU too (to test it there).
 * :class:`RunsCode`: what a malicious checkpoint holds, to show a loader never runs it.
+* :func:`packaged_provenance`: a plugin's packaged weights, checked against the record beside them.
 """
 
 from __future__ import annotations
@@ -233,6 +234,23 @@ def check_installed(registry: Any, kind: str, name: str, cls: type, distribution
     assert entry.cls is cls
     assert entry.plugin.distribution == distribution
     assert get_plugin_manager().registry().get(kind, name) is cls
+
+
+def packaged_provenance(path: Path, module: str, max_bytes: int = 20_000_000) -> dict[str, Any]:
+    """The provenance inside the packaged weights ``path`` (a ``NAME.pt`` of
+    :func:`~ssga_bench.training.export_checkpoint`), checked: ``NAME.json`` beside it gives the
+    file's SHA-256 and size, the file is at most ``max_bytes``, and ``python -m module`` made it."""
+    import hashlib
+    import json
+
+    import torch
+
+    data = path.read_bytes()
+    sidecar = json.loads(path.with_suffix(".json").read_text())
+    assert sidecar["sha256"] == hashlib.sha256(data).hexdigest() and sidecar["bytes"] == len(data) <= max_bytes
+    provenance: dict[str, Any] = torch.load(path, weights_only=True)["provenance"]
+    assert provenance["command"].startswith(f"python -m {module}")
+    return provenance
 
 
 def one_line_checkpoint_error(make: Callable[[], Any], *fragments: str) -> str:

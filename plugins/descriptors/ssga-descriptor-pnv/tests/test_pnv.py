@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import hashlib
-import json
 import pickle
 
 import numpy as np
@@ -14,7 +12,7 @@ from ssga_descriptor_pnv.model import PatchNetVLAD
 from ssga_descriptor_pnv.plugin import LIGHT_WEIGHTS, WEIGHTS_DIR, Pnv, PnvConfig
 
 from ssga_bench import BoWConfig, checkpoint_bytes, validate_experiment
-from ssga_bench.testing import one_line_checkpoint_error
+from ssga_bench.testing import one_line_checkpoint_error, packaged_provenance
 from ssga_core import Camera, CheckpointError, ConfigError, InputError, Pose, View, resolve_stage
 from ssga_core.testing import check_descriptor, check_descriptor_in_all_orders, make_view
 
@@ -176,12 +174,7 @@ def test_the_packaged_weights_load_and_differ_from_random_ones():
 
 
 def test_the_packaged_weights_carry_their_provenance():
-    data = (WEIGHTS_DIR / LIGHT_WEIGHTS).read_bytes()
-    sidecar = json.loads((WEIGHTS_DIR / "pnv-light.json").read_text())
-    assert sidecar["sha256"] == hashlib.sha256(data).hexdigest() and len(data) <= 20_000_000
-    checkpoint = torch.load(WEIGHTS_DIR / LIGHT_WEIGHTS, weights_only=True)
-    provenance = checkpoint["provenance"]
-    assert provenance["command"].startswith("python -m ssga_descriptor_pnv.train")
+    provenance = packaged_provenance(WEIGHTS_DIR / LIGHT_WEIGHTS, "ssga_descriptor_pnv.train")
     assert min(provenance["train_seeds"]) >= 1000 and not set(provenance["train_seeds"]) & set(provenance["heldout_seeds"])
     heldout = provenance["figures"]["heldout"]
     assert heldout["trained"]["netvlad"]["recall@1"] > heldout["init"]["netvlad"]["recall@1"]

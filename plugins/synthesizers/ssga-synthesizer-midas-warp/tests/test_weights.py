@@ -2,32 +2,29 @@
 
 from __future__ import annotations
 
-import hashlib
 import json
 
 import numpy as np
 import pytest
-from ssga_synthesizer_midas_warp.calibration import calibration_path
+from ssga_synthesizer_midas_warp.calibration import calibration_path, sha256_file
 from ssga_synthesizer_midas_warp.evaluate import evaluate_predictions
 from ssga_synthesizer_midas_warp.homes import CALIBRATION_SEEDS, HELDOUT_SEEDS, TRAIN_SEEDS
 from ssga_synthesizer_midas_warp.plugin import LIGHT_WEIGHTS, WEIGHTS_DIR, MidasWarp, MidasWarpConfig
+
+from ssga_bench.testing import packaged_provenance
 
 WEIGHTS = WEIGHTS_DIR / LIGHT_WEIGHTS
 BENCHMARK_SEEDS = {0, 1, 2}
 
 
 def test_the_weights_carry_their_provenance():
-    data = WEIGHTS.read_bytes()
-    assert len(data) <= 20e6
-    provenance = json.loads(WEIGHTS.with_suffix(".json").read_text())
-    assert provenance["sha256"] == hashlib.sha256(data).hexdigest() and provenance["bytes"] == len(data)
-    assert provenance["command"].startswith("python -m ssga_synthesizer_midas_warp.train")
+    provenance = packaged_provenance(WEIGHTS, "ssga_synthesizer_midas_warp.train")
     train, cal, held = set(provenance["train_seeds"]), set(provenance["calibration_seeds"]), set(provenance["heldout_seeds"])
     assert train == set(TRAIN_SEEDS) and cal == set(CALIBRATION_SEEDS) and held == set(HELDOUT_SEEDS)
     assert not (train & cal or train & held or cal & held or (train | cal | held) & BENCHMARK_SEEDS)
     assert provenance["figures"]["training_seconds"] <= 25 * 60 * 1.1
     calibration = json.loads(calibration_path(WEIGHTS).read_text())
-    assert calibration["weights_sha256"] == provenance["sha256"] and calibration["network"] == "light"
+    assert calibration["weights_sha256"] == sha256_file(WEIGHTS) and calibration["network"] == "light"
     assert calibration["scale"] > 0  # the network predicts inverse depth: nearer is higher
     assert set(calibration["provenance"]["seeds"]) == cal
 

@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import hashlib
-import json
 import pickle
 
 import numpy as np
@@ -15,7 +13,7 @@ from ssga_synthesizer_synsin.model import LightOptions, SynSinLight
 from ssga_synthesizer_synsin.plugin import LIGHT_WEIGHTS, WEIGHTS_DIR, SynSinConfig, SynSinSynthesizer
 
 from ssga_bench import checkpoint_bytes, validate_experiment
-from ssga_bench.testing import one_line_checkpoint_error
+from ssga_bench.testing import one_line_checkpoint_error, packaged_provenance
 from ssga_core import Camera, CheckpointError, InputError, Pose, View
 
 RANDOM = SynSinConfig(weights="random", device="cpu")
@@ -226,11 +224,7 @@ def test_mismatched_files_are_one_line(tmp_path):
 
 
 def test_the_packaged_weights_carry_their_provenance():
-    data = (WEIGHTS_DIR / LIGHT_WEIGHTS).read_bytes()
-    sidecar = json.loads((WEIGHTS_DIR / "synsin-light.json").read_text())
-    assert sidecar["sha256"] == hashlib.sha256(data).hexdigest() and len(data) <= 20_000_000
-    provenance = torch.load(WEIGHTS_DIR / LIGHT_WEIGHTS, weights_only=True)["provenance"]
-    assert provenance["command"].startswith("python -m ssga_synthesizer_synsin.train")
+    provenance = packaged_provenance(WEIGHTS_DIR / LIGHT_WEIGHTS, "ssga_synthesizer_synsin.train")
     assert min(provenance["train_seeds"]) >= 3000 and not set(provenance["train_seeds"]) & set(provenance["heldout_seeds"])
     heldout = provenance["figures"]["heldout"]
     trained, init = heldout["trained"]["scores"]["synsin"], heldout["init"]["scores"]["synsin"]
