@@ -222,7 +222,8 @@ def test_a_packaged_experiment_by_name_and_as_a_preset(tmp_path, ssga_installed_
     assert [v.label for v in mine.variants] == [v.label for v in paper.variants]
     assert mine.workspace.config.seed == 7 and mine.workspace.config.rooms == 8  # merged: same plugin
     assert mine.config.protocol.cells == 3 and mine.config.protocol.test_per_class == 12
-    assert str(mine.config.output) == "runs/mine" and mine.config.training.synthetic_per_class == 4
+    assert str(mine.config.output) == "runs/mine" and mine.config.training == paper.config.training
+    assert mine.config.training.classifier == "graph-match" and mine.config.training.synthetic_per_class == 12
     # A section naming another plugin replaces the preset's (the procedural keys would not validate).
     (tmp_path / "scan.glb").write_bytes(GLB_HEADER)
     (tmp_path / "other.toml").write_text('preset = "demo"\n[workspace]\nname = "mesh"\npath = "scan.glb"\n')

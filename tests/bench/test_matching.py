@@ -51,6 +51,67 @@ def naive_similarity(query: SceneGraph, train: SceneGraph, whole_weight: float, 
     return whole_weight * whole + (1 - whole_weight) * parts
 
 
+def z(x):
+    x = np.asarray(x, dtype=np.float64)
+    return (x - x.mean()) / x.std()
+
+
+def naive_standardised(query: SceneGraph, train: list[SceneGraph], whole_weight: float, layout_weight: float) -> np.ndarray:
+    """Standardised parts, one pair at a time: each query part's best twins and the training parts' mean best twins
+    standardised over the training graphs (with parts), then mixed as the plain rule mixes them."""
+    whole = z([unit(query.features[0]) @ unit(t.features[0]) for t in train])
+    with_parts = [i for i, t in enumerate(train) if t.num_parts]
+    out = whole.copy()
+
+    def both_ways(weighted: bool) -> np.ndarray:
+        twins, means = [], []
+        for i in with_parts:
+            pairs = np.array([[unit(a) @ unit(b) for b in train[i].features[1:]] for a in query.features[1:]])
+            if weighted:
+                pairs = pairs * np.array(
+                    [[np.exp(-np.sum((centre(a) - centre(b)) ** 2) / (2 * 0.3**2)) for b in train[i].boxes[1:]] for a in query.boxes[1:]]
+                )
+            twins.append(pairs.max(axis=1))
+            means.append(pairs.max(axis=0).mean())
+        per_part = np.array(twins).T  # (query parts, graphs with parts)
+        return (np.mean([z(row) for row in per_part], axis=0) + z(means)) / 2
+
+    parts = (1 - layout_weight) * both_ways(False) + layout_weight * both_ways(True)
+    out[with_parts] = whole_weight * whole[with_parts] + (1 - whole_weight) * parts
+    return out
+
+
+@pytest.mark.parametrize(("whole_weight", "layout_weight"), [(0.0, 0.0), (0.3, 0.5)])
+def test_standardised_parts_are_the_rule_written_out(whole_weight, layout_weight):
+    rng = np.random.default_rng(5)
+    train = [graph(*rng.random((1 + k, 6))) for k in (3, 0, 5, 1, 2, 4)]
+    matcher = GraphMatcher.of(train, [0, 1, 1, 2, 0, 3], 4, whole_weight, layout_weight, standardise=True)
+    for q in [graph(*rng.random((1 + k, 6))) for k in (4, 2, 0)]:
+        expected = naive_standardised(q, train, whole_weight, layout_weight) if q.num_parts else z([unit(q.features[0]) @ unit(t.features[0]) for t in train])
+        np.testing.assert_allclose(matcher.similarities(q), expected, rtol=1e-4, atol=1e-4)
+
+
+def test_standardised_parts_give_every_part_an_equal_say():
+    # Three of the query's parts look a little more like place 0's than like any other's; one part (an accident of
+    # segmentation) matches one part of place 1 exactly and no other place's at all. A plain mean follows the one
+    # part whose similarities spread widest; standardised, the three that agree outvote it.
+    dims = 12
+    e = np.eye(dims)
+
+    def near(i, cosine, spare):  # a unit vector at `cosine` to axis i, the rest along a spare axis
+        return cosine * e[i] + np.sqrt(1 - cosine**2) * e[spare]
+
+    query = graph(e[0], e[1], e[2], e[3], e[4])
+    places = [graph(e[0], near(1, 0.9, 6), near(2, 0.9, 6), near(3, 0.9, 6))]
+    places.append(graph(e[0], near(1, 0.8, 7), near(2, 0.8, 7), near(3, 0.8, 7), e[4]))
+    places += [graph(e[0], near(1, 0.8, 8 + k), near(2, 0.8, 8 + k), near(3, 0.8, 8 + k)) for k in range(4)]
+    labels = range(len(places))
+    plain = GraphMatcher.of(places, labels, len(places), whole_weight=0.0)
+    assert plain.predict([query]).argmax() == 1
+    equal_say = GraphMatcher.of(places, labels, len(places), whole_weight=0.0, standardise=True)
+    assert equal_say.predict([query]).argmax() == 0
+
+
 @pytest.mark.parametrize(("whole_weight", "layout_weight", "sigma"), [(0.3, 0.0, 0.3), (0.3, 0.5, 0.3), (0.0, 1.0, 0.1)])
 def test_similarities_are_the_rule_written_out(whole_weight, layout_weight, sigma):
     rng = np.random.default_rng(3)
@@ -105,7 +166,14 @@ def test_the_saved_state_scores_the_same_and_a_broken_one_is_refused():
     query = [graph(*rng.random((4, 5)))]
     again = GraphMatcher.from_state(matcher.state_dict())
     np.testing.assert_array_equal(again.predict(query), matcher.predict(query))
+    standardised = GraphMatcher.of(train, [2, 0, 1], 3, whole_weight=0.25, layout_weight=0.5, standardise=True)
+    again = GraphMatcher.from_state(standardised.state_dict())
+    assert again.standardise
+    np.testing.assert_array_equal(again.predict(query), standardised.predict(query))
     state = matcher.state_dict()
+    # A state saved before standardised parts existed matched without them.
+    older = GraphMatcher.from_state({k: v for k, v in state.items() if k != "standardise"})
+    np.testing.assert_array_equal(older.predict(query), matcher.predict(query))
     for field in ("node_ptr", "centres", "layout_weight"):
         with pytest.raises(InputError, match=f"saved state without '{field}'"):
             GraphMatcher.from_state({k: v for k, v in state.items() if k != field})

@@ -79,6 +79,12 @@ class TrainingConfig(Strict):
         description="classifier = 'graph-match', match_layout > 0: how far apart two parts may stand and still count as in place "
         "(a Gaussian's sigma, in image widths and heights).",
     )
+    match_standardise: bool = Field(
+        default=False,
+        description="classifier = 'graph-match': standardise each query part's matches over the training graphs before "
+        "they are averaged, so every part has an equal say, not most of it the parts whose similarities spread widest "
+        "(standardised parts).",
+    )
     hidden: int = Field(default=256, gt=0, le=8192, description="Hidden width of the GCN.")
     layers: int = Field(default=2, ge=1, le=32, description="Graph-convolution layers.")
     dropout: float = Field(default=0.0, ge=0.0, lt=1.0, description="Dropout on the hidden node states and on the pooled state.")

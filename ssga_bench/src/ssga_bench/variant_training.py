@@ -143,8 +143,21 @@ def _fit_classifier(
 ) -> dict[str, Any]:
     """Fit the variant's classifier (``training.classifier``) and save it in ``folder``; returns its training record."""
     if training.classifier == "graph-match":
-        rule = {"match_whole": training.match_whole, "match_layout": training.match_layout, "layout_sigma": training.layout_sigma}
-        matcher = GraphMatcher.of(graphs, labels, num_classes, training.match_whole, training.match_layout, training.layout_sigma)
+        rule = {
+            "match_whole": training.match_whole,
+            "match_layout": training.match_layout,
+            "layout_sigma": training.layout_sigma,
+            "match_standardise": training.match_standardise,
+        }
+        matcher = GraphMatcher.of(
+            graphs,
+            labels,
+            num_classes,
+            training.match_whole,
+            training.match_layout,
+            training.layout_sigma,
+            training.match_standardise,
+        )
         atomic_write_bytes(folder / CLASSIFIER_FILES["graph-match"], npz_bytes(matcher.state_dict()))
         return rule
     model, report = train_gcn(graphs, np.array(labels), num_classes, training, groups=groups)
