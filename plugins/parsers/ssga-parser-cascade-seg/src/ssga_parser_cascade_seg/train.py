@@ -193,7 +193,9 @@ def _batch(data: Labelled, rng: np.random.Generator, batch: int, size: int, scal
     """``batch`` random views, rescaled by one random factor, cropped to ``size`` (padded with unknown if smaller), flipped and jittered."""
     idx = rng.choice(len(data), batch, replace=False)
     scale = rng.uniform(*scales)
-    images = np.empty((batch, size, size, 3), dtype=np.float32)
+    # Zeros, not empty: padding is labelled unknown, but its pixels still pass through the convolutions, and
+    # uninitialised memory can hold NaN that spreads into the loss (only views smaller than the crop are padded).
+    images = np.zeros((batch, size, size, 3), dtype=np.float32)
     labels = np.full((batch, size, size), -1, dtype=np.int64)
     for i, k in enumerate(idx):
         rgb, lab = data.rgb[k], data.labels[k]
