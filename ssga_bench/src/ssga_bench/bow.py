@@ -62,14 +62,12 @@ from typing import Any, ClassVar, Literal
 
 import numpy as np
 from pydantic import Field, model_validator
-
 from ssga_core.data import LocalFeatures, View
 from ssga_core.errors import InputError, SsgaError
 from ssga_core.ranking import ranks
 from ssga_core.stages import LocalDescriptor, StageConfig
 
-_BLOCK = 1 << 22
-"""Most distance entries computed at once (16 MiB of float32): bounds memory for any N, k, m."""
+from ssga_bench.kmeans import BLOCK, as_descriptor_matrix, kmeans
 
 RECENT_CODES = 32
 """Codes each process remembers, by dictionary and features. Every variant with S fits its
@@ -113,117 +111,6 @@ class BoWConfig(StageConfig):
         if self.top_n is not None and self.top_n > self.k:
             raise ValueError(f"top_n ({self.top_n}) cannot exceed k ({self.k})")
         return self
-
-
-# --------------------------------------------------------------------------- k-means
-
-
-def _as_matrix(name: str, x: np.ndarray, dim: int | None = None) -> np.ndarray:
-    x = np.asarray(x)
-    if x.ndim != 2 or not np.issubdtype(x.dtype, np.number):
-        raise InputError(f"{name}: expected an (N, D) array of numbers, got shape {x.shape} of {x.dtype}")
-    if dim is not None and x.shape[1] != dim:
-        raise InputError(f"{name}: expected {dim}-d descriptors (the dictionary's), got {x.shape[1]}-d")
-    x = np.ascontiguousarray(x, dtype=np.float32)
-    if not np.isfinite(x).all():
-        raise InputError(f"{name}: descriptors contain NaN or infinity")
-    return x
-
-
-def squared_distances(x: np.ndarray, y: np.ndarray) -> np.ndarray:
-    """``(N, K)`` squared Euclidean distances between the rows of ``x`` and of ``y`` (float32, >= 0)."""
-    d = (x * x).sum(1)[:, None] - 2.0 * (x @ y.T) + (y * y).sum(1)[None, :]
-    return np.maximum(d, 0.0, out=d)
-
-
-def _assign(x: np.ndarray, x2: np.ndarray, centroids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Nearest centroid of each row and its squared distance (``x2``: the rows' squared norms), in blocks."""
-    labels = np.empty(len(x), dtype=np.intp)
-    dist = np.empty(len(x), dtype=np.float32)
-    c2 = (centroids * centroids).sum(1)
-    minus_2c = -2.0 * centroids.T
-    step = max(1, _BLOCK // len(centroids))
-    for s in range(0, len(x), step):
-        d = x[s : s + step] @ minus_2c
-        d += c2  # + |x|^2 is the same for every centroid: added to the minimum only
-        lab = d.argmin(1)
-        labels[s : s + step] = lab
-        dist[s : s + step] = d[np.arange(len(d)), lab] + x2[s : s + step]
-    np.maximum(dist, 0.0, out=dist)
-    return labels, dist
-
-
-def _kmeans_pp(x: np.ndarray, k: int, rng: np.random.Generator) -> np.ndarray:
-    """k-means++ seeding (Arthur and Vassilvitskii, 2007) on at most ``100 k`` rows of ``x``."""
-    if len(x) > 100 * k:
-        x = x[rng.choice(len(x), 100 * k, replace=False)]
-    x2 = (x * x).sum(1)
-    centres = np.empty((k, x.shape[1]), dtype=np.float32)
-    centres[0] = x[rng.integers(len(x))]
-    closest = np.maximum(x2 - 2.0 * (x @ centres[0]) + x2.dtype.type(centres[0] @ centres[0]), 0.0).astype(np.float64)
-    for i in range(1, k):
-        total = closest.sum()
-        # All remaining rows coincide with a centre: any row will do (a duplicate word).
-        j = int(rng.choice(len(x), p=closest / total)) if total > 0 else int(rng.integers(len(x)))
-        centres[i] = x[j]
-        d = x2 - 2.0 * (x @ centres[i]) + x2[j]
-        np.minimum(closest, np.maximum(d, 0.0), out=closest)
-    return centres
-
-
-def kmeans(
-    x: np.ndarray,
-    k: int,
-    *,
-    iterations: int = 20,
-    init: Literal["k-means++", "random"] = "k-means++",
-    tol: float = 1e-3,
-    rng: np.random.Generator | int = 0,
-) -> tuple[np.ndarray, np.ndarray]:
-    """Lloyd's k-means on the rows of ``x``.
-
-    Stops after ``iterations`` updates, or once at most a fraction ``tol`` of the rows
-    change cluster. An emptied cluster is re-seeded at the row farthest from its
-    centroid, so all ``k`` centroids stay in use as long as ``x`` has ``k`` distinct rows.
-
-    Returns:
-        ``(k, D)`` float32 centroids and ``(N,)`` labels (each row's nearest centroid).
-    """
-    x = _as_matrix("kmeans", x)
-    if not 1 <= k <= len(x):
-        raise InputError(f"kmeans: k = {k} clusters need at least {k} descriptors, got {len(x)}")
-    rng = np.random.default_rng(rng)
-    if init == "k-means++":
-        centroids = _kmeans_pp(x, k, rng)
-    else:
-        centroids = x[rng.choice(len(x), k, replace=False)].copy()
-    x2 = (x * x).sum(1)
-    labels, dist = _assign(x, x2, centroids)
-    for _ in range(iterations):
-        means, counts = _cluster_means(x, labels, k)
-        filled = counts > 0
-        centroids[filled] = means[filled]
-        empty = np.flatnonzero(~filled)
-        if len(empty):
-            far = np.argsort(-dist, kind="stable")[: len(empty)]
-            centroids[empty] = x[far]
-        new_labels, dist = _assign(x, x2, centroids)
-        changed = np.count_nonzero(new_labels != labels)
-        labels = new_labels
-        if changed <= tol * len(x) and not len(empty):
-            break
-    return centroids, labels
-
-
-def _cluster_means(x: np.ndarray, labels: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
-    """Mean of each cluster's rows (float32; rows of empty clusters undefined) and the cluster sizes."""
-    counts = np.bincount(labels, minlength=k)
-    ends = np.cumsum(counts)
-    grouped = x[np.argsort(labels, kind="stable")]
-    means = np.zeros((k, x.shape[1]), dtype=np.float32)
-    for c in np.flatnonzero(counts):
-        means[c] = grouped[ends[c] - counts[c] : ends[c]].sum(axis=0, dtype=np.float64) / counts[c]
-    return means, counts
 
 
 # --------------------------------------------------------------------------- votes
@@ -294,7 +181,7 @@ class BagOfWords:
                 words; lower ``k`` or give more training views), or non-finite values.
         """
         cfg = self.config
-        x = _as_matrix("BagOfWords.fit", descriptors)
+        x = as_descriptor_matrix("BagOfWords.fit", descriptors)
         if len(x) < cfg.k:
             raise InputError(
                 f"bag of words: k = {cfg.k} words need at least {cfg.k} training descriptors, got {len(x)}; "
@@ -312,11 +199,11 @@ class BagOfWords:
     def distances(self, descriptors: np.ndarray) -> np.ndarray:
         """``(M, k)`` squared distance of each descriptor to each word (NBNN or centroid, per config)."""
         centroids, _ = self._require_fitted()
-        x = _as_matrix("BagOfWords.encode", descriptors, centroids.shape[1])
+        x = as_descriptor_matrix("BagOfWords.encode", descriptors, centroids.shape[1])
         minus_2p, p2 = self._targets()
         m = len(p2) // self.dim
         out = np.empty((len(x), self.dim), dtype=np.float32)
-        step = max(1, _BLOCK // len(p2))
+        step = max(1, BLOCK // len(p2))
         for s in range(0, len(x), step):
             d = x[s : s + step] @ minus_2p
             d += p2  # |x|^2 does not change which prototype is nearest: added after the minimum
@@ -346,7 +233,7 @@ class BagOfWords:
             self._require_fitted()
             return np.zeros((0, self.dim), dtype=np.float32)
         centroids, _ = self._require_fitted()
-        x = _as_matrix("BagOfWords.encode", descriptors, centroids.shape[1])
+        x = as_descriptor_matrix("BagOfWords.encode", descriptors, centroids.shape[1])
         key = (self.fingerprint(), hashlib.blake2b(x.data, digest_size=16).digest() + str(x.shape).encode())
         codes = _recent_codes.get(key)
         if codes is None:
