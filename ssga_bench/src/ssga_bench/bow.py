@@ -62,12 +62,12 @@ from typing import Any, ClassVar, Literal
 
 import numpy as np
 from pydantic import Field, model_validator
+
+from ssga_bench.kmeans import BLOCK, as_descriptor_matrix, kmeans
 from ssga_core.data import LocalFeatures, View
 from ssga_core.errors import InputError, SsgaError
 from ssga_core.ranking import ranks
 from ssga_core.stages import LocalDescriptor, StageConfig
-
-from ssga_bench.kmeans import BLOCK, as_descriptor_matrix, kmeans
 
 RECENT_CODES = 32
 """Codes each process remembers, by dictionary and features. Every variant with S fits its

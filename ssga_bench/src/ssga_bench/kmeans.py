@@ -9,6 +9,7 @@ from __future__ import annotations
 from typing import Literal
 
 import numpy as np
+
 from ssga_core.errors import InputError
 
 BLOCK = 1 << 22
