@@ -73,3 +73,17 @@ def test_row_b_may_come_from_another_run_of_the_same_views(tmp_path):
     write_run(tmp_path / "seeds" / "seed-3", [1, 1, 1], [1, 1, 1], [1, 1, 2])
     with pytest.raises(InputError, match="holds seed 3, .* holds seed 2; compare outputs of the same seeds"):
         compare(tmp_path / "gcn", "A", "B", b_output=tmp_path / "seeds")
+
+
+def test_the_ensemble_row_is_named_alike_whatever_members_each_seed_chose(tmp_path):
+    for seed, label in ((0, "Ensemble (RRF) of 1 chosen on validation: A"), (1, "Ensemble (RRF) of 2 chosen on validation: A, B")):
+        folder = tmp_path / "bench" / f"seed-{seed}"
+        folder.mkdir(parents=True)
+        records = [{"id": f"t{i}", "level": 1, "truth": 0, "rows": {"A": {"rank": 2}, label: {"rank": r}}} for i, r in enumerate([1, 2])]
+        (folder / "predictions.jsonl").write_text("".join(json.dumps(r) + "\n" for r in records))
+    text = compare(tmp_path / "bench", "A", "ensemble", metrics=("mrr",))
+    assert "| seed 0 | +25.0 ±" in text and "| seed 1 | +25.0 ±" in text  # (1 - 1/2 + 0) / 2, in percent
+    # With two ensemble rows the name is ambiguous: refused, naming the rows.
+    records = [{"id": "t0", "level": 1, "truth": 0, "rows": {"Ensemble (RRF)": {"rank": 1}, "Ensemble (STK)": {"rank": 1}}}]
+    with pytest.raises(InputError, match="no row 'ensemble'; the rows are: 'Ensemble \\(RRF\\)', 'Ensemble \\(STK\\)'"):
+        paired_differences(records, "ensemble", "Ensemble (RRF)", "mrr", "run")

@@ -9,7 +9,7 @@ t-interval across seeds (what a rerun on other homes would see).
 Reads ``predictions.jsonl`` (written by ``ssga run``), or ``seed-*/predictions.jsonl``
 (``ssga bench``). Row B may come from another output folder of the same seeds and test
 views (``b_output``): two configs compared view by view, e.g. the GCN against graph
-matching.
+matching. ``ensemble`` names the ensemble row of each seed, whatever members it chose.
 """
 
 from __future__ import annotations
@@ -34,16 +34,28 @@ def prediction_files(output: Path) -> dict[str, Path]:
     return {p.parent.name.replace("-", " "): p for p in seeds}
 
 
+ENSEMBLE = "ensemble"
+"""The name that stands for a run's ensemble row, whose label may name the members each seed chose."""
+
+
+def row_label(records: list[dict[str, Any]], name: str, where: str) -> str:
+    """The label of row ``name`` in ``records``: the name itself, or for :data:`ENSEMBLE` the one ``Ensemble (...)`` row."""
+    rows = list(records[0]["rows"]) if records else []
+    if name in rows:
+        return name
+    ensembles = [label for label in rows if label.startswith("Ensemble (")]
+    if name == ENSEMBLE and len(ensembles) == 1:
+        return ensembles[0]
+    raise InputError(f"{where}: no row {name!r}; the rows are: {', '.join(map(repr, rows))}, or {ENSEMBLE!r} for the ensemble's")
+
+
 def paired_differences(
     records: list[dict[str, Any]], a: str, b: str, metric: str, where: str, records_b: list[dict[str, Any]] | None = None, where_b: str = ""
 ) -> dict[str, Estimate]:
     """Per level group, ``metric(b) - metric(a)`` over the views both rows ranked, with its paired
     interval; row ``b`` from ``records_b`` (another run of the same test views) if given."""
     records_b, where_b = (records, where) if records_b is None else (records_b, where_b)
-    for label, recs, source in ((a, records, where), (b, records_b, where_b)):
-        rows = recs[0]["rows"] if recs else {}
-        if label not in rows:
-            raise InputError(f"{source}: no row {label!r}; the rows are: {', '.join(map(repr, rows))}")
+    a, b = row_label(records, a, where), row_label(records_b, b, where_b)
     if [r["id"] for r in records] != [r["id"] for r in records_b]:
         raise InputError(f"{where_b}: other test views than {where}; compare outputs of the same seeds and protocol")
     diff = per_query(np.array([r["rows"][b]["rank"] for r in records_b]), metric) - per_query(np.array([r["rows"][a]["rank"] for r in records]), metric)
