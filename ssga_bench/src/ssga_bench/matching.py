@@ -51,7 +51,7 @@ spread over the classes is about 5 times the cosines'). Of 0.1, 0.25, 0.5 and 1.
 mean negative log-likelihood of their true class on bench seed 0, a tuning seed (SIFT-SL (SPD): 4.67)."""
 
 _NO_SPREAD = 1e-6
-"""A part whose similarities do not spread over the training graphs is standardised by this instead (it then adds nothing)."""
+"""The least spread standardisation divides by: a part whose similarities are all equal over the training graphs stays 0."""
 
 
 def standardised(x: np.ndarray, axis: int) -> np.ndarray:

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 from pydantic import Field
 
-from ssga_bench import RANDOM_SEED, Learned, LearnedConfig, file_stamp, load_checkpoint, load_strict
+from ssga_bench import Learned, LearnedConfig, load_checkpoint, load_strict, seeded
 from ssga_core import RegionDescriptor, Regions, View, hookimpl
 
 CLASSES = 13
@@ -33,19 +33,13 @@ class TinySeg(Learned, RegionDescriptor):
     reloaded = ("net",)  # self._load() when the stage is made; a worker process loads its own copy instead of receiving it
     dim = CLASSES
 
-    def _load(self):
-        import torch
+    def _load(self):  # once per process per file, on the device; a missing file: one line naming `weights`
+        return self.load_network((), lambda: (seeded(network), {}), self._from_file)[0]
 
-        path = None if self.random_weights else self.weights_file()  # a missing file: one line naming `weights`
-
-        def build():
-            torch.manual_seed(RANDOM_SEED)
-            net = network()
-            if path is not None:
-                load_strict(net, load_checkpoint(path, self.name)["state_dict"], self.name, path)
-            return net.eval().to(self.device)
-
-        return self.once_per_process((file_stamp(path) if path else self.config.weights, str(self.device)), build)
+    def _from_file(self, path):
+        net = network()
+        load_strict(net, load_checkpoint(path, self.name)["state_dict"], self.name, path)
+        return net, {}  # no config field comes from the file
 
     def probabilities(self, rgb: np.ndarray) -> np.ndarray:
         """``(H, W, CLASSES)``: what the network sees at each pixel."""
