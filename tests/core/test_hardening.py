@@ -12,9 +12,7 @@ import pytest
 from typer.testing import CliRunner
 
 from ssga_core.cli import app_with_plugin_commands
-from ssga_core.errors import VariantSyntaxError
 from ssga_core.plugins import get_plugin_manager
-from ssga_core.variants import Variant, parse_variant
 
 SSGA = Path(sys.executable).with_name("ssga")
 """The venv's console script, by absolute path (the subprocesses run in a temporary folder)."""
@@ -144,30 +142,8 @@ def test_the_cli_survives_a_plugin_module_that_exits(tmp_path):
     assert "Traceback" not in strict.stderr and "ssga plugins" not in strict.stdout
 
 
-# --- 5. Variant grammar: ASCII digits only, a bounded preset, a column for every error ---
-
-
-@pytest.mark.parametrize(
-    ("text", "column", "reason"),
-    [
-        ("PD²", 3, "'²' is not a stage"),  # str.isdigit() says yes; int() would not
-        ("PD٣", 3, "'٣' is not a stage"),  # Arabic-Indic three: int() would read 3
-        ("PD" + "9" * 5000, 9, "at most 6 digits"),  # int() of it would raise ValueError (4300-digit limit)
-        ("PD1234567", 9, "at most 6 digits"),
-        ("PD3x", 4, "unexpected 'x' after the preset number 3"),
-    ],
-)
-def test_bad_variants_are_syntax_errors_with_a_column(text, column, reason):
-    with pytest.raises(VariantSyntaxError) as info:
-        parse_variant(text)
-    assert info.value.column == column
-    assert reason in info.value.reason and f"column {column}:" in str(info.value)
-    assert "\n" not in str(info.value) and len(str(info.value)) < 200  # a long input is not echoed whole
-
-
-@pytest.mark.parametrize(("text", "variant"), [("PD3", Variant("PD", 3)), ("PD123456", Variant("PD", 123456)), ("SPD", Variant("SPD"))])
-def test_good_variants_still_parse(text, variant):
-    assert parse_variant(text) == variant
+# --- 5. Variant grammar: a column for every error, in every command ---
+# (The grammar's own cases, non-ASCII digits, bounded presets and long inputs, are in test_variants.py.)
 
 
 def test_config_validate_reports_bad_variants_with_columns(tmp_path, monkeypatch, ssga_plugin_set):

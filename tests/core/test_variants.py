@@ -24,6 +24,7 @@ from ssga_core.variants import PAPER_ORDERS, all_orders, canonical_order, check_
         ("SPD1", "SPD", 1),
         ("SPD2", "SPD", 2),
         ("PDS12", "PDS", 12),
+        ("PD123456", "PD", 123456),
     ],
 )
 def test_valid_variants(text, order, preset):
@@ -47,6 +48,10 @@ def test_valid_variants(text, order, preset):
         ("SPD0", 4, "preset number starts at 1"),
         ("SPD1a", 5, "unexpected 'a' after the preset number 1"),
         ("PD-", 3, "'-' is not a stage"),
+        ("PD²", 3, "'²' is not a stage"),  # str.isdigit() says yes; int() would not
+        ("PD٣", 3, "'٣' is not a stage"),  # Arabic-Indic three: int() would read 3
+        ("PD1234567", 9, "at most 6 digits"),
+        ("PD3x", 4, "unexpected 'x' after the preset number 3"),
     ],
 )
 def test_invalid_variants_name_the_column_and_reason(text, column, message):
@@ -55,6 +60,14 @@ def test_invalid_variants_name_the_column_and_reason(text, column, message):
     assert info.value.column == column
     assert message in info.value.reason
     assert str(info.value).startswith(f"invalid variant {text!r}: column {column}: ")
+
+
+def test_a_long_variant_is_refused_in_one_short_line():
+    # int() of 5000 digits would raise ValueError (its 4300-digit limit); the input is not echoed whole.
+    with pytest.raises(VariantSyntaxError) as info:
+        parse_variant("PD" + "9" * 5000)
+    assert info.value.column == 9 and "at most 6 digits" in info.value.reason
+    assert "\n" not in str(info.value) and len(str(info.value)) < 200
 
 
 def test_lower_case_suggests_the_upper_case_variant():

@@ -92,7 +92,7 @@ def _merged(vertices, faces):  # noqa: ANN001, ANN202 - numpy arrays; numpy is i
 def write_ascii(binary: Path, path: Path) -> None:
     import numpy as np
 
-    from ssga_workspace_mesh.ply import parse_header, read_body
+    from ssga_workspace_mesh.ply_format import parse_header, read_body
 
     data = binary.read_bytes()
     header = parse_header(data)

@@ -17,9 +17,9 @@ _EXPORTS = {
     "CATEGORIES": "ssga_workspace_procedural.categories",
     "semantic_id": "ssga_workspace_procedural.categories",
     "export_glb": "ssga_workspace_procedural.export",
-    "Home": "ssga_workspace_procedural.generator",
-    "HomeConfig": "ssga_workspace_procedural.generator",
-    "HomeObject": "ssga_workspace_procedural.generator",
+    "Home": "ssga_workspace_procedural.home",
+    "HomeConfig": "ssga_workspace_procedural.home",
+    "HomeObject": "ssga_workspace_procedural.home",
     "generate_home": "ssga_workspace_procedural.generator",
 }
 

@@ -22,7 +22,7 @@ from pathlib import Path
 from ssga_bench import write_json
 from ssga_workspace_mesh.loading import floor_plan_path, save_mesh_scene, sidecar_path
 from ssga_workspace_procedural.categories import CATEGORIES
-from ssga_workspace_procedural.generator import Home
+from ssga_workspace_procedural.home import Home
 
 
 def export_glb(home: Home, path: str | os.PathLike[str]) -> tuple[Path, Path, Path]:

@@ -9,7 +9,7 @@ from typing import TYPE_CHECKING
 
 from ssga_core import Camera, Pose, View
 from ssga_bench import FloorPlan
-from ssga_workspace_procedural.generator import Home
+from ssga_workspace_procedural.home import Home
 
 if TYPE_CHECKING:
     from ssga_workspace_mesh.renderer import MeshRenderer
