@@ -25,7 +25,7 @@ from ssga_workspace_procedural.layout import Layout, Rect
 
 @dataclass(frozen=True)
 class HomeConfig:
-    """Everything :func:`generate_home` needs; the same config always gives the same home.
+    """Everything :func:`~ssga_workspace_procedural.generator.generate_home` needs; the same config always gives the same home.
 
     Attributes:
         seed: the random seed.
