@@ -22,6 +22,12 @@ def test_borda_by_hand():
     np.testing.assert_array_equal(BordaCount().fuse(scores), [[2, 3, 1]])
 
 
+def test_borda_tied_classes_take_their_mean_rank():
+    scores = np.array([[[0.45, 0.45, 0.10]], [[0.30, 0.60, 0.10]]])
+    # Variant 1: classes 0 and 1 share ranks 1 and 2 (1.5 each), class 2 is third.
+    np.testing.assert_array_equal(BordaCount().fuse(scores), [[1.5 + 1, 1.5 + 2, 0 + 0]])
+
+
 def test_mean_probability_by_hand():
     scores = np.array([[[0.7, 0.2, 0.1]], [[0.1, 0.5, 0.4]]])
     np.testing.assert_allclose(MeanProbability().fuse(scores), [[0.4, 0.35, 0.25]])

@@ -36,3 +36,13 @@ def test_bad_scores_are_rejected():
 
     with pytest.raises(InputError, match=r"expected non-empty \(variants, queries, classes\) scores, got shape \(3, 4\)"):
         ReciprocalRankFusion().fuse(np.zeros((3, 4)))
+
+
+def test_classes_a_variant_ties_share_its_vote():
+    # Variant 1 cannot tell classes 0 and 1 apart (a variant without synthesis scores every
+    # heading of its cell alike); variant 2 prefers class 1. By class index, variant 1 would
+    # give class 0 a whole vote and class 1 a half, and the fusion would tie at 1.5.
+    scores = np.array([[[0.45, 0.45, 0.10]], [[0.30, 0.60, 0.10]]])
+    fused = ReciprocalRankFusion().fuse(scores)
+    np.testing.assert_allclose(fused, [[0.75 + 0.5, 0.75 + 1.0, 1 / 3 + 1 / 3]])
+    assert fused.argmax() == 1

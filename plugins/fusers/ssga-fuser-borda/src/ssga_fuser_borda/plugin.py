@@ -1,7 +1,8 @@
 """Two baselines for the paper's reciprocal-rank fusion.
 
 * ``borda``: each variant gives a class ``C - rank`` points (C classes), so every rank
-  counts linearly, where reciprocal ranks count mostly the top few.
+  counts linearly, where reciprocal ranks count mostly the top few. Tied classes take
+  their mean rank.
 * ``mean-prob``: the mean of the variants' class probabilities, which lets a confident
   variant outvote hesitant ones.
 """
@@ -20,7 +21,7 @@ class BordaCount(Fuser):
 
     def _fuse(self, scores: np.ndarray) -> np.ndarray:
         num_classes = scores.shape[-1]
-        return (num_classes - ranks(scores, axis=-1)).sum(axis=0).astype(np.float64)
+        return (num_classes - ranks(scores, axis=-1, ties="average")).sum(axis=0)
 
 
 class MeanProbability(Fuser):

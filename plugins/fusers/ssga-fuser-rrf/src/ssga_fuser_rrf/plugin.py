@@ -3,7 +3,9 @@
 Each variant's class probabilities become a reciprocal-rank vector ``1 / (k + rank)``;
 the fused score of a class is the sum over variants. Only ranks matter, so variants
 whose probabilities are calibrated differently (a confident GCN beside a hesitant one)
-vote with equal weight, in the spirit of a majority vote.
+vote with equal weight, in the spirit of a majority vote. Classes a variant scores
+alike share their ranks' votes equally (a variant without synthesis scores every heading
+of a cell alike): breaking the tie by class index would vote for the lowest one.
 """
 
 from __future__ import annotations
@@ -29,7 +31,7 @@ class ReciprocalRankFusion(Fuser):
     Config = RRFConfig
 
     def _fuse(self, scores: np.ndarray) -> np.ndarray:
-        return reciprocal_ranks(scores, k=self.config.k, axis=-1).sum(axis=0)
+        return reciprocal_ranks(scores, k=self.config.k, axis=-1, ties="average").sum(axis=0)
 
 
 @hookimpl

@@ -63,7 +63,7 @@ class Stacking(Fuser):
                     )
                 out.append(np.log(np.maximum(scores, FLOOR)))
             else:
-                out.append(reciprocal_ranks(scores, axis=-1))
+                out.append(reciprocal_ranks(scores, axis=-1, ties="average"))  # tied classes share their votes, as in rrf
         return np.stack(out, axis=1)
 
     def fit(self, scores: np.ndarray, truth: np.ndarray) -> None:
