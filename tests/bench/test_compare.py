@@ -87,3 +87,30 @@ def test_the_ensemble_row_is_named_alike_whatever_members_each_seed_chose(tmp_pa
     records = [{"id": "t0", "level": 1, "truth": 0, "rows": {"Ensemble (RRF)": {"rank": 1}, "Ensemble (STK)": {"rank": 1}}}]
     with pytest.raises(InputError, match="no row 'ensemble'; the rows are: 'Ensemble \\(RRF\\)', 'Ensemble \\(STK\\)'"):
         paired_differences(records, "ensemble", "Ensemble (RRF)", "mrr", "run")
+
+
+def test_the_marked_ensemble_and_the_nearest_neighbour_are_found_among_every_fused_row(tmp_path):
+    # A run's predictions hold every row of its report: here two fusions beside the ensemble,
+    # and a nearest neighbour named by each seed's best single variant.
+    for seed, best in ((0, "A"), (1, "B")):
+        folder = tmp_path / "bench" / f"seed-{seed}"
+        folder.mkdir(parents=True)
+        records = [
+            {
+                "id": f"t{i}",
+                "level": 1,
+                "truth": 0,
+                "rows": {
+                    "Ensemble (RRF) of 1 chosen on validation: A": {"rank": rank, "ensemble": True},
+                    "Ensemble (RRF) of all": {"rank": 1},
+                    "Ensemble (STK) of all, learned on validation": {"rank": 3},
+                    f"nearest neighbour ({best})": {"rank": 4},
+                },
+            }
+            for i, rank in enumerate([1, 2])
+        ]
+        (folder / "predictions.jsonl").write_text("".join(json.dumps(r) + "\n" for r in records))
+    text = compare(tmp_path / "bench", "nearest neighbour", "ensemble", metrics=("mrr",))
+    assert "| seed 0 | +50.0 ±" in text and "| seed 1 | +50.0 ±" in text  # (1 + 1/2) / 2 - 1/4, in percent
+    text = compare(tmp_path / "bench", "Ensemble (RRF) of all", "ensemble", metrics=("mrr",))
+    assert "| seed 0 | -25.0 ±" in text

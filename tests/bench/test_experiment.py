@@ -268,6 +268,13 @@ def test_a_fusion_learned_on_validation_is_reported_beside_the_papers(tmp_path, 
     truth = np.array([s.place for s in validated.split("test")])
     np.testing.assert_array_equal(report.true_ranks[row], truth_ranks(by_hand.fuse(test), truth))
 
+    # The predictions hold every row of the report, the ensemble's marked, for `ssga compare`.
+    records = [json.loads(line) for line in (tmp_path / "out" / "predictions.jsonl").read_text().splitlines()]
+    entries = records[0]["rows"]
+    assert set(entries) == set(report.rows) - {"random"} - {label for label in report.rows if label.startswith("best single")}
+    assert [label for label, entry in entries.items() if entry.get("ensemble")] == ["Ensemble (RRF)"]
+    assert [r["rows"][row]["rank"] for r in records] == report.true_ranks[row].tolist()
+
     # Without the learned rule, a rerun leaves no stale weights behind.
     plain = validate_experiment({**exp.config.model_dump(mode="json", exclude={"ensemble"}), "output": str(tmp_path / "out")}, stand_in_registry)
     again, _ = run_experiment(plain, validated, tmp_path / "out")

@@ -23,7 +23,7 @@ def test_predictions_round_trip(tmp_path):
     scores = np.array([[0.1, 0.2, 0.6, 0.1], [0.2, 0.3, 0.3, 0.2], [0.4, 0.3, 0.2, 0.1]])
     path = tmp_path / "predictions.jsonl"
     extra, groups = {"heading_gap": np.array([5.0, 70.0, 10.0])}, {"near": np.array([True, False, True])}
-    save_predictions(path, tests, {"v": scores, "E": scores[:, ::-1]}, truth, k=2, extra=extra, groups=groups)
+    save_predictions(path, tests, {"v": scores, "E": scores[:, ::-1]}, truth, k=2, extra=extra, groups=groups, ensemble="E")
     records = load_predictions(path)
     assert [r["id"] for r in records] == ["test-000", "test-001", "test-002"]
     first, second, third = records
@@ -32,7 +32,7 @@ def test_predictions_round_trip(tmp_path):
     assert first["groups"] == ["near"] and second["groups"] == [] and second["heading_gap"] == 70.0
     assert first["truth"] == 2 and first["rows"]["v"] == {"top": [2, 1], "scores": [0.6, 0.2], "rank": 1}
     assert second["rows"]["v"]["top"] == [1, 2] and second["rows"]["v"]["rank"] == 3  # ties: the lower class first
-    assert third["rows"]["v"]["rank"] == 4 and third["rows"]["E"] == {"top": [3, 2], "scores": [0.4, 0.3], "rank": 1}
+    assert third["rows"]["v"]["rank"] == 4 and third["rows"]["E"] == {"top": [3, 2], "scores": [0.4, 0.3], "rank": 1, "ensemble": True}
     assert not list(tmp_path.glob(".*.tmp"))  # written atomically
 
 

@@ -9,7 +9,8 @@ t-interval across seeds (what a rerun on other homes would see).
 Reads ``predictions.jsonl`` (written by ``ssga run``), or ``seed-*/predictions.jsonl``
 (``ssga bench``). Row B may come from another output folder of the same seeds and test
 views (``b_output``): two configs compared view by view, e.g. the GCN against graph
-matching. ``ensemble`` names the ensemble row of each seed, whatever members it chose.
+matching. ``ensemble`` names the ensemble row of each seed, whatever members it chose, and
+``nearest neighbour`` the nearest-neighbour reference, whichever variant's features it uses.
 """
 
 from __future__ import annotations
@@ -36,17 +37,29 @@ def prediction_files(output: Path) -> dict[str, Path]:
 
 ENSEMBLE = "ensemble"
 """The name that stands for a run's ensemble row, whose label may name the members each seed chose."""
+NEAREST = "nearest neighbour"
+"""The name that stands for the nearest-neighbour row, whose label names the best single variant of each seed."""
 
 
 def row_label(records: list[dict[str, Any]], name: str, where: str) -> str:
-    """The label of row ``name`` in ``records``: the name itself, or for :data:`ENSEMBLE` the one ``Ensemble (...)`` row."""
-    rows = list(records[0]["rows"]) if records else []
-    if name in rows:
+    """The label of row ``name`` in ``records``: the name itself, or the row :data:`ENSEMBLE` or :data:`NEAREST` stands for."""
+    entries = records[0]["rows"] if records else {}
+    if name in entries:
         return name
-    ensembles = [label for label in rows if label.startswith("Ensemble (")]
-    if name == ENSEMBLE and len(ensembles) == 1:
-        return ensembles[0]
-    raise InputError(f"{where}: no row {name!r}; the rows are: {', '.join(map(repr, rows))}, or {ENSEMBLE!r} for the ensemble's")
+    if name == ENSEMBLE:
+        marked = [label for label, entry in entries.items() if entry.get("ensemble")]
+        # Predictions written before the mark hold one ``Ensemble (...)`` row, the ensemble's.
+        found = marked or [label for label in entries if label.startswith("Ensemble (")]
+    elif name == NEAREST:
+        found = [label for label in entries if label.startswith(NEAREST + " (")]
+    else:
+        found = []
+    if len(found) == 1:
+        return found[0]
+    raise InputError(
+        f"{where}: no row {name!r}; the rows are: {', '.join(map(repr, entries))}, "
+        f"or {ENSEMBLE!r} for the ensemble's, {NEAREST!r} for the nearest neighbour's"
+    )
 
 
 def paired_differences(

@@ -35,15 +35,23 @@ def prediction_records(
     k: int = 5,
     groups: Mapping[str, np.ndarray] | None = None,
     extra: Mapping[str, Sequence[Any]] | None = None,
+    ensemble: str | None = None,
 ) -> list[dict[str, Any]]:
     """One record per test view; see :func:`save_predictions`."""
     truth = np.asarray(truth)
     groups, extra = dict(groups or {}), dict(extra or {})
+    if ensemble is not None and ensemble not in rows:
+        raise ValueError(f"the ensemble row {ensemble!r} is not among the rows")
     ranked = {label: (top_k(s, k), truth_ranks(s, truth), np.asarray(s)) for label, s in rows.items()}
     records = []
     for q, sample in enumerate(tests):
         predictions = {
-            label: {"top": best[q].tolist(), "scores": [round(float(s[q, c]), 6) for c in best[q]], "rank": int(rank[q])}
+            label: {
+                "top": best[q].tolist(),
+                "scores": [round(float(s[q, c]), 6) for c in best[q]],
+                "rank": int(rank[q]),
+                **({"ensemble": True} if label == ensemble else {}),
+            }
             for label, (best, rank, s) in ranked.items()
         }
         records.append(
@@ -76,20 +84,23 @@ def save_predictions(
     extra: Mapping[str, Sequence[Any]] | None = None,
     *,
     groups: Mapping[str, np.ndarray] | None = None,
+    ensemble: str | None = None,
 ) -> None:
     """Write one JSON line per test view, atomically.
 
     Each line: ``id``, ``pose`` (x, y, yaw), ``level``, ``vo``, ``vo_landmark``, ``groups``
     (the names of the ``groups`` masks the view is in, e.g. ``["near"]``), ``truth`` (its
     class), any ``extra`` per-view values under their own keys, and ``rows``: per row label
-    (each variant, the ensemble) the ``top`` ``k`` classes, their ``scores`` and the
-    ``rank`` of the true class.
+    (each variant, the ensemble, the other fusions and references) the ``top`` ``k``
+    classes, their ``scores`` and the ``rank`` of the true class; the ensemble row's entry
+    also has ``"ensemble": true``.
 
     Args:
         tests: the test views, in the order of the scores' rows.
         rows: ``(Q, C)`` scores per row label.
+        ensemble: the label of the run's ensemble row, one of ``rows``.
     """
-    write_jsonl(path, prediction_records(tests, rows, truth, k, groups, extra))
+    write_jsonl(path, prediction_records(tests, rows, truth, k, groups, extra, ensemble))
 
 
 def load_predictions(path: str | Path) -> list[dict[str, Any]]:

@@ -76,8 +76,10 @@ def write_report(
         atomic_write_bytes(out / "report.md", report.markdown().encode())
         atomic_write_bytes(out / "results.csv", report.csv().encode())
         atomic_write_bytes(out / "results.png", report.plot())
-        rows = {**{label: results[label].test for label in labels}, ensemble[0]: ensemble[1]}
-        save_predictions(out / "predictions.jsonl", tests, rows, truth, groups={"near": near, "far": ~near})
+        # Every row of the report (the variants, the ensemble, the other fusions and references),
+        # so `ssga compare` pairs any two of them on the same views.
+        rows = {**{label: results[label].test for label in labels}, ensemble[0]: ensemble[1], **references}
+        save_predictions(out / "predictions.jsonl", tests, rows, truth, groups={"near": near, "far": ~near}, ensemble=ensemble[0])
         # Each class is shown by its training view: the real one, or the render at its target
         # pose; a captured workspace has no such render, so its cell's real view stands in.
         real_of_cell = {s.cell: s for s in dataset.split("train")}

@@ -12,7 +12,7 @@ from ssga_core.cli import command
 
 def compare_cli(
     output: Annotated[Path, typer.Argument(metavar="OUTPUT", help="The output folder of `ssga run` or `ssga bench`.")],
-    a: Annotated[str, typer.Argument(metavar="A", help="The row subtracted, as the report labels it, e.g. 'SIFT-SL (PSD)'; 'ensemble': the ensemble row, whatever members each seed chose.")],
+    a: Annotated[str, typer.Argument(metavar="A", help="The row subtracted, as the report labels it, e.g. 'SIFT-SL (PSD)' or 'Ensemble (RRF) of all'; 'ensemble': the ensemble row, whatever members each seed chose; 'nearest neighbour': the nearest-neighbour reference, whichever variant's features.")],
     b: Annotated[str, typer.Argument(metavar="B", help="The row it is subtracted from, e.g. 'SIFT-SE (PSD)'.")],
     out: Annotated[Path | None, typer.Option(metavar="FILE.md", help="Also write the tables to this file.")] = None,
     b_from: Annotated[
