@@ -239,3 +239,37 @@ def test_bad_checkpoints_are_reported_in_one_line(tmp_path):
     torch.save({"hparams": state["hparams"], "state_dict": state["state_dict"]}, tmp_path / "old.pt")  # format 1 had no "format"
     refused("old.pt", "format 1, this ssga reads format 2")
     refused("none.pt", "no such GCN checkpoint")
+
+
+def test_the_cosine_head_starts_each_prototype_at_its_class_mean_and_learns():
+    graphs, labels = scene_graphs(12, 4, seed=1)
+    model = GCN(16, 5, hidden=32, head="cosine")  # class 4 has no graph: it keeps its random start
+    packed = PackedGraphs.of(graphs)
+    model.fit_inputs(packed)
+    before = model.classifier.prototypes.detach().clone()
+    model.start_prototypes(packed, torch.from_numpy(labels))
+    pooled = model.pooled(packed).detach()
+    for c in range(4):
+        torch.testing.assert_close(model.classifier.prototypes[c], pooled[labels == c].mean(dim=0))
+    torch.testing.assert_close(model.classifier.prototypes[4], before[4])
+    # Untrained, the prototypes already rank each training graph's class first more often than not.
+    assert (model(packed).argmax(dim=1).numpy() == labels).mean() > 0.5
+
+    trained, _ = train_gcn(graphs, labels, 4, TrainingConfig(head="cosine", **FAST))
+    test_graphs, test_labels = scene_graphs(6, 4, seed=3)
+    assert accuracy(trained, test_graphs, test_labels) > 0.9
+
+
+def test_cosine_checkpoints_round_trip_and_older_ones_load_as_linear(tmp_path):
+    graphs, labels = scene_graphs(3, 3, seed=3)
+    model, _ = train_gcn(graphs, labels, 3, TrainingConfig(epochs=3, head="cosine", **FAST))
+    save_gcn(model, tmp_path / "gcn.pt")
+    loaded = load_gcn(tmp_path / "gcn.pt")
+    assert loaded.hparams["head"] == "cosine"
+    np.testing.assert_allclose(loaded.predict(graphs), model.predict(graphs), rtol=1e-6)
+    # A checkpoint written before heads existed has no "head": it is the paper's linear head.
+    linear, _ = train_gcn(graphs, labels, 3, TrainingConfig(epochs=1, **FAST))
+    save_gcn(linear, tmp_path / "linear.pt")
+    state = torch.load(tmp_path / "linear.pt", weights_only=True)
+    torch.save({**state, "hparams": {k: v for k, v in state["hparams"].items() if k != "head"}}, tmp_path / "older.pt")
+    np.testing.assert_allclose(load_gcn(tmp_path / "older.pt").predict(graphs), linear.predict(graphs), rtol=1e-6)

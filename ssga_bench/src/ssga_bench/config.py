@@ -98,6 +98,11 @@ class TrainingConfig(Strict):
         description="Where the node weights (whole image 1, parts 1/K, paper 3.2) act: 'input' scales the standardised "
         "node features by them (the paper); 'readout' only weighs the parts in the readout.",
     )
+    head: Literal["linear", "cosine"] = Field(
+        default="linear",
+        description="The GCN's last layer: 'linear' (the paper's) or 'cosine', a scaled cosine to one prototype per class, "
+        "each started at the mean pooled state of the class's training graphs.",
+    )
     epochs: int = Field(default=200, gt=0, le=100_000, description="Most epochs; early stopping should end training before.")
     batch_size: int = Field(default=64, gt=0, le=1_000_000, description="Graphs per optimiser step.")
     threads: int = Field(

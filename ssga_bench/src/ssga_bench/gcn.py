@@ -26,6 +26,11 @@ The model, in the order the data flows:
    slico graphs). ``"mean"`` and ``"weighted"`` (all nodes, by count or by node weight)
    remain for comparison. The last layer's ReLU comes after the pooling (see
    :meth:`GCN.forward`), so that layer costs one row per graph, not one per node.
+5. **Head** ``"linear"`` (the paper's): a linear layer over the pooled state. ``"cosine"``:
+   a scaled cosine between the pooled state and one prototype per class, the prototypes
+   started at the mean pooled state of each class's training graphs (:meth:`GCN.start_prototypes`),
+   so a class is first scored by how like its own graphs a query is, as nearest neighbour
+   does, and training moves the prototypes from there.
 
 Training (:func:`train_gcn`): Adam, early stopping on the validation loss of a held-out
 share of the graphs, whole pose groups at a time (:func:`validation_split`), or on the
@@ -64,6 +69,9 @@ if TYPE_CHECKING:  # the model takes any config with these fields; it does not d
 
 READOUTS = ("image+parts", "mean", "weighted")
 NODE_WEIGHTS = ("input", "readout")
+HEADS = ("linear", "cosine")
+COSINE_SCALE = 10.0
+"""The cosine head's starting inverse temperature (learned): cosines span [-1, 1], too flat for a softmax over 120 classes."""
 CHECKPOINT_FORMAT = 2
 """Format 1 (dense batches, no input statistics) is refused: its weights mean something else."""
 SCALE_FLOOR = 0.1
@@ -195,6 +203,18 @@ class PackedGraphs:
         return torch.sparse_coo_tensor(index, torch.cat(values), shape, is_coalesced=True, check_invariants=False)
 
 
+class CosineHead(nn.Module):
+    """Class logits ``scale * cos(state, prototype_c)``: one learned prototype per class."""
+
+    def __init__(self, dim: int, num_classes: int) -> None:
+        super().__init__()
+        self.prototypes = nn.Parameter(torch.randn(num_classes, dim) * 0.01)
+        self.scale = nn.Parameter(torch.tensor(COSINE_SCALE))
+
+    def forward(self, state: torch.Tensor) -> torch.Tensor:
+        return self.scale * F.normalize(state, dim=1) @ F.normalize(self.prototypes, dim=1).T
+
+
 class GCN(nn.Module):
     """Graph classifier: input standardisation, ``layers`` graph convolutions, a readout, a linear output
     (see the module docstring for why each is as it is)."""
@@ -208,22 +228,26 @@ class GCN(nn.Module):
         dropout: float = 0.0,
         readout: str = "image+parts",
         node_weights: str = "input",
+        head: str = "linear",
     ) -> None:
         super().__init__()
         if readout not in READOUTS:
             raise ValueError(f"GCN readout must be one of {', '.join(READOUTS)}; got {readout!r}")
         if node_weights not in NODE_WEIGHTS:
             raise ValueError(f"GCN node_weights must be one of {', '.join(NODE_WEIGHTS)}; got {node_weights!r}")
+        if head not in HEADS:
+            raise ValueError(f"GCN head must be one of {', '.join(HEADS)}; got {head!r}")
         self.hparams = {
             "in_dim": in_dim, "num_classes": num_classes, "hidden": hidden, "layers": layers,
-            "dropout": dropout, "readout": readout, "node_weights": node_weights,
+            "dropout": dropout, "readout": readout, "node_weights": node_weights, "head": head,
         }  # fmt: skip
         # Row 0: whole-image nodes; row 1: parts.
         self.register_buffer("feature_mean", torch.zeros(2, in_dim))
         self.register_buffer("feature_scale", torch.ones(2, in_dim))
         self.convs = nn.ModuleList(nn.Linear(2 * (in_dim if i == 0 else hidden), hidden) for i in range(layers))
         self.dropout = nn.Dropout(dropout)
-        self.classifier = nn.Linear(hidden * (2 if readout == "image+parts" else 1), num_classes)
+        pooled_dim = hidden * (2 if readout == "image+parts" else 1)
+        self.classifier = nn.Linear(pooled_dim, num_classes) if head == "linear" else CosineHead(pooled_dim, num_classes)
 
     @torch.no_grad()
     def fit_inputs(self, graphs: PackedGraphs) -> None:
@@ -249,6 +273,22 @@ class GCN(nn.Module):
 
     def forward(self, graphs: PackedGraphs) -> torch.Tensor:
         """Class logits ``(graphs, classes)``."""
+        return self.classifier(self.dropout(self.pooled(graphs)))
+
+    @torch.no_grad()
+    def start_prototypes(self, graphs: PackedGraphs, labels: torch.Tensor) -> None:
+        """The cosine head's prototypes: each class's mean pooled state over ``graphs`` (a class
+        without a graph keeps its random start)."""
+        assert isinstance(self.classifier, CosineHead)
+        self.eval()
+        pooled = self.pooled(graphs)
+        sums = torch.zeros_like(self.classifier.prototypes).index_add_(0, labels, pooled)
+        counts = torch.bincount(labels, minlength=len(sums))
+        seen = counts > 0
+        self.classifier.prototypes[seen] = sums[seen] / counts[seen, None]
+
+    def pooled(self, graphs: PackedGraphs) -> torch.Tensor:
+        """The readout's state of each graph, what the head classifies."""
         z = graphs.first_layer if graphs.first_layer is not None else self._neighbourhood(self.inputs(graphs), graphs)
         *inner, last = self.convs
         # The last layer runs on pooled rows, one or two per graph, not on every node:
@@ -265,7 +305,7 @@ class GCN(nn.Module):
         if self.hparams["readout"] == "image+parts":
             image, parts = pooled.chunk(2)
             pooled = torch.cat([image, parts * graphs.has_parts[:, None]], dim=1)  # zeros: no parts to summarise
-        return self.classifier(self.dropout(pooled))
+        return pooled
 
     @staticmethod
     def _neighbourhood(h: torch.Tensor, graphs: PackedGraphs, pool: torch.Tensor | None = None) -> torch.Tensor:
@@ -377,10 +417,12 @@ def train_gcn(
         y = torch.from_numpy(labels)
         y_train, y_val = y[train], y[val]
         model = GCN(
-            packed.x.shape[1], num_classes, config.hidden, config.layers, config.dropout, config.readout, config.node_weights
+            packed.x.shape[1], num_classes, config.hidden, config.layers, config.dropout, config.readout, config.node_weights, config.head
         )
         model.fit_inputs(train_set)
         train_set, val_set = model.prepare(train_set), (model.prepare(val_set) if val_set is not None else None)
+        if config.head == "cosine":
+            model.start_prototypes(train_set, y_train)
         optimiser = torch.optim.Adam(model.parameters(), lr=config.lr, weight_decay=config.weight_decay)
         best, best_epoch, best_state = float("inf"), 0, _snapshot(model)
         train_loss: list[float] = []
