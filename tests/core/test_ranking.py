@@ -45,3 +45,8 @@ def test_without_ties_both_rules_agree():
     scores = np.random.default_rng(3).random((4, 9))
     np.testing.assert_array_equal(ranks(scores, ties="average"), ranks(scores))
     np.testing.assert_allclose(reciprocal_ranks(scores, k=5.0, ties="average"), reciprocal_ranks(scores, k=5.0))
+
+
+def test_an_unknown_tie_rule_is_refused():
+    with pytest.raises(ValueError, match="ties must be 'ordinal' or 'average', got 'dense'"):
+        ranks(np.array([1.0, 1.0]), ties="dense")  # type: ignore[arg-type]

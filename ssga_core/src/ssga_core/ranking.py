@@ -11,11 +11,16 @@ Ties = Literal["ordinal", "average"]
 ``"average"`` lets the tied entries share their block of ranks equally."""
 
 
+def _descending(scores: np.ndarray, axis: int) -> tuple[np.ndarray, np.ndarray]:
+    """``scores`` with ``axis`` moved last, and their descending order along it (stable: equal scores keep their positions)."""
+    scores = np.moveaxis(np.asarray(scores), axis, -1)
+    return scores, np.argsort(-scores, axis=-1, kind="stable")
+
+
 def _sorted_blocks(scores: np.ndarray, axis: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The descending order along ``axis`` (moved last), and for each sorted position the
     0-based first and last position of its block of equal scores."""
-    scores = np.moveaxis(np.asarray(scores), axis, -1)
-    order = np.argsort(-scores, axis=-1, kind="stable")
+    scores, order = _descending(scores, axis)
     ordered = np.take_along_axis(scores, order, axis=-1)
     n = ordered.shape[-1]
     position = np.broadcast_to(np.arange(n), ordered.shape)
@@ -25,6 +30,11 @@ def _sorted_blocks(scores: np.ndarray, axis: int) -> tuple[np.ndarray, np.ndarra
     first = np.maximum.accumulate(np.where(opens, position, 0), axis=-1)
     last = np.flip(np.minimum.accumulate(np.flip(np.where(closes, position, n - 1), axis=-1), axis=-1), axis=-1)
     return order, first, last
+
+
+def _check(ties: str) -> None:
+    if ties not in ("ordinal", "average"):
+        raise ValueError(f"ties must be 'ordinal' or 'average', got {ties!r}")
 
 
 def _unsorted(values: np.ndarray, order: np.ndarray, axis: int) -> np.ndarray:
@@ -41,10 +51,12 @@ def ranks(scores: np.ndarray, axis: int = -1, ties: Ties = "ordinal") -> np.ndar
     along the axis are always a permutation of ``1..n``, whatever the scores.
     ``ties="average"``: tied entries take the mean of the ranks they span (floats).
     """
-    order, first, last = _sorted_blocks(scores, axis)
+    _check(ties)
     if ties == "ordinal":
+        _, order = _descending(scores, axis)
         by_position = np.broadcast_to(np.arange(1, order.shape[-1] + 1), order.shape)
         return _unsorted(np.ascontiguousarray(by_position), order, axis)
+    order, first, last = _sorted_blocks(scores, axis)
     return _unsorted((first + last) / 2.0 + 1.0, order, axis)
 
 
@@ -56,6 +68,7 @@ def reciprocal_ranks(scores: np.ndarray, k: float = 0.0, axis: int = -1, ties: T
     variant that cannot tell some classes apart (one without synthesis scores every heading
     of a cell alike) must not vote for them in class-index order.
     """
+    _check(ties)
     if ties == "ordinal":
         return 1.0 / (k + ranks(scores, axis=axis))
     order, first, last = _sorted_blocks(scores, axis)
