@@ -92,6 +92,23 @@ def test_point_map_lookup_and_label_warp():
     np.testing.assert_array_equal(syn.warp_labels(labels), [[-1, 0, 1, 2], [-1, 4, 5, 6]])
 
 
+def test_drawn_share_counts_known_depth_around_each_position_of_a_synthetic_view():
+    real = make_view(seed=0)
+    depth = real.depth.copy()
+    depth[:, 128:] = 0.0  # the right half is a hole
+    depth[40, 20] = np.nan  # one unknown pixel inside the drawn half
+    synthetic = View(rgb=real.rgb, pose=real.pose, camera=real.camera, depth=depth, synthetic=True)
+    positions = [[10, 10], [127, 50], [200, 100], [20, 40], [0, 0], [-5, 3], [np.nan, 4]]
+    share = synthetic.drawn_share(positions, side=11)
+    # 11 x 11 around (127, 50): columns 122-132, of which 122-127 drawn; around (20, 40) one pixel of 121
+    # unknown; the square around (0, 0) is clipped to 6 x 6, all drawn; outside the image or NaN: 0.
+    np.testing.assert_allclose(share, [1, 6 / 11, 0, 120 / 121, 1, 0, 0], rtol=1e-6)
+    # A real view, or a synthetic one without depth, says nothing about holes: all drawn.
+    np.testing.assert_array_equal(real.drawn_share(positions, side=11), np.ones(7))
+    no_depth = View(rgb=real.rgb, pose=real.pose, camera=real.camera, synthetic=True)
+    np.testing.assert_array_equal(no_depth.drawn_share(positions, side=11), np.ones(7))
+
+
 def test_scene_graph_validates_edges_and_needs_the_whole_image():
     ok = dict(boxes=np.zeros((3, 4), np.float32), features=np.zeros((3, 5), np.float32), weights=np.ones(3, np.float32))
     SceneGraph(**ok, edges=np.array([[0, 1], [1, 2]]))

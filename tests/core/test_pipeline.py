@@ -218,3 +218,24 @@ def test_a_descriptor_that_learns_nothing_has_an_empty_state_and_refuses_one():
     d.load_state_dict({})
     with pytest.raises(InputError, match="descriptor 'test-patch-colour' learns nothing, but got a fitted state of centroids"):
         d.load_state_dict({"centroids": np.zeros((2, 2))})
+
+
+def test_holes_skip_describes_only_what_the_synthesizer_drew(view):
+    # 0.6 m to the right: content moves 25.6 px left, columns 230-255 of the synthetic view are a
+    # hole. The last column of patches (u = 244.8) sees only hole in its 26 px square and is
+    # dropped; the one before (u = 223.5) sees 19 of 27 columns drawn and stays.
+    target = target_right(view, 0.6)
+    skipping = PatchColour(PatchColour.Config(holes="skip"))
+    synthetic = ShiftWarp().synthesize(view, target).view
+    every = PatchColour().extract(synthetic)
+    drawn = every.positions[:, 0] < 240
+    kept = skipping.extract(synthetic)
+    np.testing.assert_array_equal(kept.positions, every.positions[drawn])
+    assert [len(f) for f in skipping.extract_many([synthetic, view])] == [len(kept), 144]
+    assert len(skipping.extract(view)) == 144  # a real view has no holes
+    skip_graph = build_graph(bind("SD", skipping), view, target)
+    keep_graph = build_graph(bind("SD"), view, target)
+    np.testing.assert_allclose(keep_graph.features[0], every.descriptors.mean(axis=0), rtol=1e-6)
+    np.testing.assert_allclose(skip_graph.features[0], every.descriptors[drawn].mean(axis=0), rtol=1e-6)
+    # The hole is black: describing it darkens the whole image's feature.
+    assert (skip_graph.features[0] > keep_graph.features[0]).all()

@@ -67,7 +67,7 @@ from ssga_bench.kmeans import BLOCK, as_descriptor_matrix, kmeans
 from ssga_core.data import LocalFeatures, View
 from ssga_core.errors import InputError, SsgaError
 from ssga_core.ranking import ranks
-from ssga_core.stages import LocalDescriptor, StageConfig
+from ssga_core.stages import LocalDescriptor, LocalDescriptorConfig, StageConfig
 
 RECENT_CODES = 32
 """Codes each process remembers, by dictionary and features. Every variant with S fits its
@@ -323,7 +323,7 @@ def _draw_prototypes(x: np.ndarray, labels: np.ndarray, centroids: np.ndarray, m
 # --------------------------------------------------------------------------- descriptor base
 
 
-class BoWDescriptorConfig(StageConfig):
+class BoWDescriptorConfig(LocalDescriptorConfig):
     """Base config of a :class:`BoWDescriptor`: subclass it and add the descriptor's own fields."""
 
     bow: BoWConfig = Field(default=BoWConfig(), description="Bag-of-words dictionary and node-feature pooling.")

@@ -100,6 +100,31 @@ class View:
             return np.zeros(self.camera.shape, dtype=bool)
         return np.isfinite(self.depth) & (self.depth > 0)
 
+    def drawn_share(self, positions: np.ndarray, side: int) -> np.ndarray:
+        """``(N,)`` float32: for a synthetic view, the share of the ``side x side`` pixels
+        around each ``(u, v)`` position where its synthesizer drew a surface (known depth).
+
+        1 everywhere for a real view, or a synthetic one without depth (nothing says where
+        it drew). The square is clipped to the image; a position outside it gets 0.
+        Pixels whose colour a synthesizer filled in (narrow cracks) carry no depth, so
+        they count as holes: a wide enough square sees past them.
+        """
+        positions = np.asarray(positions, dtype=np.float32).reshape(-1, 2)
+        if not self.synthetic or self.depth is None:
+            return np.ones(len(positions), dtype=np.float32)
+        h, w = self.camera.shape
+        drawn = np.zeros((h + 1, w + 1), dtype=np.float64)  # a summed-area table, one row and column of zeros first
+        drawn[1:, 1:] = self.valid_depth().cumsum(0).cumsum(1)
+        half = max(int(side), 1) // 2
+        col = np.rint(np.nan_to_num(positions[:, 0], nan=-1e9)).clip(-1, w).astype(np.intp)
+        row = np.rint(np.nan_to_num(positions[:, 1], nan=-1e9)).clip(-1, h).astype(np.intp)
+        c0, c1 = (col - half).clip(0, w), (col + half + 1).clip(0, w)
+        r0, r1 = (row - half).clip(0, h), (row + half + 1).clip(0, h)
+        area = (r1 - r0) * (c1 - c0)
+        count = drawn[r1, c1] - drawn[r0, c1] - drawn[r1, c0] + drawn[r0, c0]
+        inside = (col >= 0) & (col < w) & (row >= 0) & (row < h)
+        return np.where(inside & (area > 0), count / np.maximum(area, 1), 0.0).astype(np.float32)
+
 
 def boxes_from_labels(labels: np.ndarray, count: int) -> np.ndarray:
     """``(count, 4)`` bounding boxes ``[u0, v0, u1, v1]`` (inclusive pixel centres) of each label.

@@ -19,10 +19,10 @@ from __future__ import annotations
 
 from abc import ABC, abstractmethod
 from collections.abc import Mapping, Sequence
-from typing import Any, ClassVar
+from typing import Any, ClassVar, Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict
+from pydantic import BaseModel, ConfigDict, Field
 
 from ssga_core.data import Data, LocalFeatures, Regions, Synthesis, View
 from ssga_core.errors import InputError
@@ -161,19 +161,52 @@ class Descriptor(Stage):
         """Length of a node feature (known after :meth:`fit`)."""
 
 
+HOLE_WINDOW = 0.1
+"""The square :meth:`LocalDescriptor.extract` looks at around a feature to tell a hole,
+as a share of the image's side (``sqrt(H W)``): 26 px at 256 x 256, about a dense SIFT
+keypoint's size, wider than the cracks a synthesizer fills in."""
+
+HOLE_SHARE = 0.5
+"""A feature of a synthetic view is kept (``holes = "skip"``) where at least this share of
+that square was drawn."""
+
+
+class LocalDescriptorConfig(StageConfig):
+    """Base config of a :class:`LocalDescriptor`; a plugin's config subclasses it."""
+
+    holes: Literal["describe", "skip"] = Field(
+        default="describe",
+        description="In a synthetic view, 'skip' drops the features that lie on holes (where the synthesizer "
+        "drew less than half of the square around them: a hole shows no place, and a real query never has one); "
+        "'describe' keeps every feature, holes included.",
+    )
+
+
 class LocalDescriptor(Descriptor):
     """Features at pixel positions, pooled into node features per region.
 
     Because the features sit at positions, a synthesizer's point map can move them,
     so this kind supports every order, also those that describe before parsing or
     before synthesis (``DS``, ``DSP``, ``PDS``).
+
+    With ``holes = "skip"`` in its config (:class:`LocalDescriptorConfig`), the features
+    a subclass extracts from a synthetic view are kept only where the synthesizer drew
+    (:meth:`View.drawn_share`): here, once, for every order, the dictionary fit and the cache.
     """
 
+    Config: ClassVar[type[StageConfig]] = LocalDescriptorConfig
     produces = frozenset({Data.LOCAL_FEATURES})
 
     def extract(self, view: View) -> LocalFeatures:
         self._require(view)
-        return self._extract(view)
+        return self._drop_holes(view, self._extract(view))
+
+    def _drop_holes(self, view: View, features: LocalFeatures) -> LocalFeatures:
+        if getattr(self.config, "holes", "describe") != "skip" or not view.synthetic:
+            return features
+        h, w = view.camera.shape
+        side = round(HOLE_WINDOW * (h * w) ** 0.5)
+        return features.select(view.drawn_share(features.positions, side) >= HOLE_SHARE)
 
     def extract_many(self, views: Sequence[View]) -> list[LocalFeatures]:
         """The local features of each of ``views``, as :meth:`extract` gives them, in one batch.
@@ -187,7 +220,7 @@ class LocalDescriptor(Descriptor):
         features = self._extract_many(views)
         if len(features) != len(views):
             raise InputError(f"descriptor {self.name!r} returned {len(features)} results for {len(views)} views")
-        return list(features)
+        return [self._drop_holes(view, f) for view, f in zip(views, features)]
 
     def _extract_many(self, views: Sequence[View]) -> list[LocalFeatures]:
         """Default: one view at a time."""
