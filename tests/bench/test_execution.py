@@ -4,6 +4,11 @@ depend on the executor or the number of workers, to the bit."""
 from __future__ import annotations
 
 import hashlib
+import os
+import signal
+import subprocess
+import sys
+import time
 from pathlib import Path
 
 import pytest
@@ -180,3 +185,51 @@ def test_extract_and_parse_on_worker_processes_equal_this_process(tmp_path, monk
     (tmp_path / "imgs" / "2.png").write_bytes(b"not a png")
     broken = runner.invoke(app, ["extract", *names, "--descriptor", "dense-sift", "--out", "broken.h5", "--executor", "processes", "--workers", "2"])
     assert broken.exit_code == 1 and "imgs/2.png: not a readable image" in broken.output and not (tmp_path / "broken.h5").exists()
+
+
+INTERRUPTED_RUN = """
+import sys
+from ssga_core.cli.main import interrupt_on_sigterm
+from ssga_bench.execution import ProcessExecutor
+from ssga_bench.testing import task_write_pid_and_wait
+
+interrupt_on_sigterm()  # as `ssga` does
+try:
+    with ProcessExecutor(2) as executor:
+        list(executor.map(task_write_pid_and_wait, [sys.argv[1]] * 2))
+except KeyboardInterrupt:
+    print("interrupted")
+    sys.exit(130)
+"""
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    return True
+
+
+def test_sigterm_unwinds_a_run_and_stops_its_workers(tmp_path):
+    # A scheduler's time limit sends SIGTERM to the run alone: its workers, busy with
+    # minute-long tasks, must stop with it instead of running on, orphaned.
+    run = subprocess.Popen([sys.executable, "-c", INTERRUPTED_RUN, str(tmp_path)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        for _ in range(600):  # both workers started their task (spawning takes a few seconds)
+            if len(list(tmp_path.glob("*.pid"))) == 2 or run.poll() is not None:
+                break
+            time.sleep(0.1)
+        workers = [int(p.stem) for p in tmp_path.glob("*.pid")]
+        assert len(workers) == 2, run.communicate()[1]
+        run.send_signal(signal.SIGTERM)
+        out, err = run.communicate(timeout=30)
+    finally:
+        if run.poll() is None:
+            run.kill()
+    assert (run.returncode, out.strip()) == (130, "interrupted"), err
+    for _ in range(50):
+        if not any(_alive(pid) for pid in workers):
+            break
+        time.sleep(0.1)
+    assert not any(_alive(pid) for pid in workers)

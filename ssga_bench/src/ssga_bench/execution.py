@@ -226,11 +226,19 @@ class Executor(ABC):
     def __enter__(self) -> Executor:
         return self
 
-    def __exit__(self, *exc: object) -> None:
+    def __exit__(self, kind: type[BaseException] | None, *exc: object) -> None:
+        # Interrupted (Ctrl-C; a scheduler's SIGTERM, which `ssga` turns into the same): the
+        # tasks running now are stopped, not waited for, and no worker outlives the run.
+        if kind is not None and issubclass(kind, KeyboardInterrupt):
+            self.abort()
         self.close()
 
     def close(self) -> None:
         """Release the workers (a Ray this executor started is shut down; one it joined is left)."""
+
+    def abort(self) -> None:
+        """Stop the tasks running now, before :meth:`close` (an interrupted run; what they
+        would have written is written again when it resumes)."""
 
     def map(
         self,
@@ -351,6 +359,14 @@ class ProcessExecutor(Executor):
     def _cancel(self, pending: dict[int, Any]) -> None:
         for future in pending.values():
             future.cancel()
+
+    def abort(self) -> None:
+        if self._pool is not None:
+            if hasattr(self._pool, "terminate_workers"):  # Python 3.14
+                self._pool.terminate_workers()
+                return
+            for process in list((self._pool._processes or {}).values()):  # no public way before 3.14
+                process.terminate()
 
     def close(self) -> None:
         if self._pool is not None:

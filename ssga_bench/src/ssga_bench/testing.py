@@ -124,6 +124,16 @@ def task_fails(x: int) -> int:
     return x
 
 
+def task_write_pid_and_wait(folder: str) -> None:
+    """Writes its worker's process id into ``folder``, then waits a minute: a task still
+    running when its run is interrupted."""
+    import os
+    import time
+
+    (Path(folder) / f"{os.getpid()}.pid").write_text(str(os.getpid()))
+    time.sleep(60)
+
+
 def task_thread_counts(_: object) -> tuple[int, int, int]:
     """torch, OpenCV and BLAS threads where the task runs (a worker's are all 1)."""
     import cv2

@@ -10,6 +10,7 @@ options and calls a keyword-only library function.
 from __future__ import annotations
 
 import functools
+import signal
 import sys
 from collections.abc import Callable
 from pathlib import Path
@@ -97,8 +98,21 @@ def app_with_plugin_commands(plugin_set: plugins.PluginSet | None = None) -> typ
     return app
 
 
+def interrupt_on_sigterm() -> None:
+    """Make SIGTERM (``kill``, a scheduler's time limit or preemption) unwind the program as
+    Ctrl-C does, so every ``with`` and ``finally`` runs: workers are stopped, half-written
+    files are not left behind, and a resumed run continues where this one stopped. Python's
+    default ends the process at once and leaves its worker processes running."""
+
+    def interrupt(signum: int, frame: object) -> None:
+        raise KeyboardInterrupt
+
+    signal.signal(signal.SIGTERM, interrupt)
+
+
 def main() -> None:
     """Console-script entry point."""
+    interrupt_on_sigterm()
     try:
         cli = app_with_plugin_commands()
     except SsgaError as exc:
