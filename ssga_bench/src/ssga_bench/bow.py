@@ -374,7 +374,7 @@ class BoWDescriptor(LocalDescriptor):
         rng = np.random.default_rng(cfg.seed)
         chunks = []
         for view in views:
-            d = self.extract(view).descriptors
+            d = self._words(self.extract(view).descriptors)
             if len(d) > per_view:
                 d = d[np.sort(rng.choice(len(d), per_view, replace=False))]
             chunks.append(d)
@@ -385,7 +385,12 @@ class BoWDescriptor(LocalDescriptor):
             raise NotFittedError(
                 f"descriptor {self.name!r} is not fitted: call fit(training views) to learn its bag-of-words dictionary before pooling"
             )
-        return self.bow.pool(self.bow.encode(features.descriptors), members)
+        return self.bow.pool(self.bow.encode(self._words(features.descriptors)), members)
+
+    def _words(self, descriptors: np.ndarray) -> np.ndarray:
+        """The columns of the local features that the dictionary learns and encodes: all of
+        them, unless a subclass keeps something else beside them (dense SIFT's colour)."""
+        return descriptors
 
     def state_dict(self) -> dict[str, Any]:
         """The fitted dictionary (:meth:`BagOfWords.state_dict`)."""

@@ -11,6 +11,7 @@ reciprocal-rank votes, NBNN, pooling) is :class:`ssga_bench.bow.BoWDescriptor`'s
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from typing import Literal
 
 import cv2
@@ -19,6 +20,7 @@ from pydantic import Field
 
 from ssga_core import Descriptor, LocalFeatures, View, hookimpl
 from ssga_bench import BoWDescriptor, BoWDescriptorConfig
+from ssga_bench.bow import normalise_rows
 
 _SIFT_SIGMA = 1.6
 """OpenCV SIFT's base blur; a keypoint of size ``s`` was detected at blur ``s / 2``."""
@@ -41,6 +43,14 @@ class DenseSiftConfig(BoWDescriptorConfig):
         description="OpenCV keypoint size (px) at 256 x 256, scaled by sqrt(H W) / 256; the descriptor's Gaussian window has sigma 3x this.",
     )
     root_sift: bool = Field(default=False, description="RootSIFT (L1-normalise, then square root); otherwise L2-normalised SIFT.")
+    colour: float = Field(
+        default=0.0,
+        ge=0.0,
+        le=1.0,
+        description="Share of a node's similarity given to colour: each keypoint also keeps the colour histogram of its "
+        "window (CIELAB, 4 x 4 x 4 bins), a node pools its keypoints' into one, and two nodes' cosine is (1 - colour) times "
+        "their words' plus colour times their colours'. 0: grey SIFT words alone.",
+    )
 
 
 def grid_positions(shape: tuple[int, int], grid: int, layout: str = "pnv") -> np.ndarray:
@@ -70,6 +80,34 @@ def keypoint_octave(size: float) -> int:
     if layer == _SIFT_LAYERS:
         octave, layer = octave + 1, 0
     return octave | (layer << 8)
+
+
+SIFT_DIM = 128
+
+COLOUR_BINS = 4
+"""Bins per CIELAB channel of a keypoint's colour histogram (4 x 4 x 4 = 64)."""
+
+_AB_RANGE = (96.0, 160.0)
+"""OpenCV's 8-bit a and b (128 is grey) that the bins span; rooms' colours lie well inside
+0-255, so the full range would leave most of them in the two middle bins."""
+
+
+def colour_histograms(rgb: np.ndarray, positions: np.ndarray, side: int) -> np.ndarray:
+    """``(N, 64)`` float32: the CIELAB histogram of the ``side x side`` window around each
+    position, as shares of its pixels (clipped to the image)."""
+    lab = cv2.cvtColor(rgb, cv2.COLOR_RGB2LAB).astype(np.float32)
+    lightness = np.minimum(lab[..., 0] * COLOUR_BINS / 256.0, COLOUR_BINS - 1).astype(np.intp)
+    lo, hi = _AB_RANGE
+    ab = np.clip((lab[..., 1:] - lo) * COLOUR_BINS / (hi - lo), 0, COLOUR_BINS - 1).astype(np.intp)
+    bins = (lightness * COLOUR_BINS + ab[..., 0]) * COLOUR_BINS + ab[..., 1]
+    h, w = bins.shape
+    col = np.clip(np.rint(positions[:, 0]), 0, w - 1).astype(np.intp)
+    row = np.clip(np.rint(positions[:, 1]), 0, h - 1).astype(np.intp)
+    out = np.empty((len(positions), COLOUR_BINS**3), dtype=np.float32)
+    for b in range(COLOUR_BINS**3):
+        share = cv2.boxFilter((bins == b).astype(np.float32), -1, (side, side), borderType=cv2.BORDER_REFLECT)
+        out[:, b] = share[row, col]
+    return out
 
 
 def root_sift(descriptors: np.ndarray) -> np.ndarray:
@@ -102,7 +140,27 @@ class DenseSift(BoWDescriptor):
         else:
             norm = np.linalg.norm(descriptors, axis=1, keepdims=True)
             descriptors = np.divide(descriptors, norm, out=np.zeros_like(descriptors), where=norm > 0)
+        if cfg.colour > 0:
+            window = max(int(round(size)), 1)
+            descriptors = np.concatenate([descriptors, colour_histograms(view.rgb, positions, window)], axis=1)
         return LocalFeatures(positions=positions, descriptors=descriptors)
+
+    @property
+    def dim(self) -> int:
+        return self.bow.dim + (COLOUR_BINS**3 if self.config.colour > 0 else 0)
+
+    def _words(self, descriptors: np.ndarray) -> np.ndarray:
+        return descriptors[:, :SIFT_DIM]
+
+    def _pool(self, features: LocalFeatures, members: Sequence[np.ndarray]) -> np.ndarray:
+        words = super()._pool(features, members)
+        share = self.config.colour
+        if share <= 0:
+            return words
+        colours = features.descriptors[:, SIFT_DIM:]
+        pooled = np.stack([colours[np.asarray(m, dtype=np.intp)].sum(axis=0) for m in members]) if len(members) else np.zeros((0, colours.shape[1]), np.float32)
+        # Both halves at unit length, weighed so that a cosine of two nodes mixes the two cosines by `colour`.
+        return np.concatenate([math.sqrt(1 - share) * words, math.sqrt(share) * normalise_rows(pooled.astype(np.float32), "l2")], axis=1)
 
 
 @hookimpl
