@@ -94,7 +94,7 @@ _AB_RANGE = (96.0, 160.0)
 
 def colour_histograms(rgb: np.ndarray, positions: np.ndarray, side: int) -> np.ndarray:
     """``(N, 64)`` float32: the CIELAB histogram of the ``side x side`` window around each
-    position, as shares of its pixels (clipped to the image)."""
+    position, as shares of its pixels (mirrored at the image's border)."""
     lab = cv2.cvtColor(rgb, cv2.COLOR_RGB2LAB).astype(np.float32)
     lightness = np.minimum(lab[..., 0] * COLOUR_BINS / 256.0, COLOUR_BINS - 1).astype(np.intp)
     lo, hi = _AB_RANGE
