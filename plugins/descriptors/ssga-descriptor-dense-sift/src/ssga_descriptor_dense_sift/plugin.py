@@ -20,7 +20,6 @@ from pydantic import Field
 
 from ssga_core import Descriptor, LocalFeatures, View, hookimpl
 from ssga_bench import BoWDescriptor, BoWDescriptorConfig
-from ssga_bench.bow import normalise_rows
 
 _SIFT_SIGMA = 1.6
 """OpenCV SIFT's base blur; a keypoint of size ``s`` was detected at blur ``s / 2``."""
@@ -159,8 +158,10 @@ class DenseSift(BoWDescriptor):
             return words
         colours = features.descriptors[:, SIFT_DIM:]
         pooled = np.stack([colours[np.asarray(m, dtype=np.intp)].sum(axis=0) for m in members]) if len(members) else np.zeros((0, colours.shape[1]), np.float32)
+        norm = np.linalg.norm(pooled, axis=1, keepdims=True)
+        pooled = np.divide(pooled, norm, out=np.zeros_like(pooled), where=norm > 0).astype(np.float32)
         # Both halves at unit length, weighed so that a cosine of two nodes mixes the two cosines by `colour`.
-        return np.concatenate([math.sqrt(1 - share) * words, math.sqrt(share) * normalise_rows(pooled.astype(np.float32), "l2")], axis=1)
+        return np.concatenate([math.sqrt(1 - share) * words, math.sqrt(share) * pooled], axis=1)
 
 
 @hookimpl
