@@ -100,13 +100,22 @@ def colour_histograms(rgb: np.ndarray, positions: np.ndarray, side: int) -> np.n
     ab = np.clip((lab[..., 1:] - lo) * COLOUR_BINS / (hi - lo), 0, COLOUR_BINS - 1).astype(np.intp)
     bins = (lightness * COLOUR_BINS + ab[..., 0]) * COLOUR_BINS + ab[..., 1]
     h, w = bins.shape
-    col = np.clip(np.rint(positions[:, 0]), 0, w - 1).astype(np.intp)
-    row = np.clip(np.rint(positions[:, 1]), 0, h - 1).astype(np.intp)
-    out = np.empty((len(positions), COLOUR_BINS**3), dtype=np.float32)
-    for b in range(COLOUR_BINS**3):
-        share = cv2.boxFilter((bins == b).astype(np.float32), -1, (side, side), borderType=cv2.BORDER_REFLECT)
-        out[:, b] = share[row, col]
-    return out
+    # Only the windows' own pixels are counted (144 windows read a fraction of the image's
+    # histogram maps a box filter per bin would make), one bincount for all of them.
+    offsets = np.arange(side) - side // 2
+    rows = _mirrored(np.clip(np.rint(positions[:, 1]), 0, h - 1).astype(np.intp)[:, None] + offsets, h)
+    cols = _mirrored(np.clip(np.rint(positions[:, 0]), 0, w - 1).astype(np.intp)[:, None] + offsets, w)
+    window_bins = bins[rows[:, :, None], cols[:, None, :]].reshape(len(positions), -1)
+    nbins = COLOUR_BINS**3
+    keyed = window_bins + nbins * np.arange(len(positions))[:, None]
+    counts = np.bincount(keyed.ravel(), minlength=nbins * len(positions)).reshape(len(positions), nbins)
+    return (counts / float(side * side)).astype(np.float32)
+
+
+def _mirrored(index: np.ndarray, n: int) -> np.ndarray:
+    """Indices past either end of ``0..n-1`` reflected back in, edge pixel repeated (OpenCV's BORDER_REFLECT)."""
+    index = np.where(index < 0, -index - 1, index)
+    return np.where(index >= n, 2 * n - index - 1, index)
 
 
 def root_sift(descriptors: np.ndarray) -> np.ndarray:
