@@ -1,4 +1,4 @@
-"""Bag-of-words node features: k-means, reciprocal-rank votes, NBNN, pooling, the descriptor base."""
+"""Bag-of-words node features: k-means, reciprocal-rank votes, NBNN, pooling, colour, the descriptor base."""
 
 from __future__ import annotations
 
@@ -7,6 +7,7 @@ import pytest
 from pydantic import ValidationError
 
 from ssga_core import InputError, LocalFeatures, View
+from ssga_bench.colour import COLOUR_BINS, COLOUR_DIM, colour_histograms
 from ssga_bench.bow import (
     BagOfWords,
     BoWConfig,
@@ -306,3 +307,56 @@ def test_a_config_without_bow_is_refused():
 
     with pytest.raises(TypeError, match="bow: BoWConfig"):
         NoBow()
+
+
+# --------------------------------------------------------------------------- colour
+
+
+def test_colour_histograms_are_the_shares_of_each_windows_pixels():
+    # Left half pure grey (L 128 -> bin 2, a = b = 128 -> bin 2), right half saturated red.
+    rgb = np.full((64, 64, 3), 128, np.uint8)
+    rgb[:, 32:] = (200, 30, 30)
+    positions = np.array([[10.0, 32.0], [50.0, 32.0], [31.5, 32.0]], np.float32)
+    hist = colour_histograms(rgb, positions, side=9)
+    np.testing.assert_allclose(hist.sum(axis=1), 1.0, rtol=1e-5)
+    grey = (2 * COLOUR_BINS + 2) * COLOUR_BINS + 2
+    assert hist[0, grey] == pytest.approx(1.0) and hist[1, grey] == 0.0 and hist[1].max() == pytest.approx(1.0)
+    assert hist[2, grey] == pytest.approx(4 / 9, abs=1e-5)  # columns 28-36 round 31.5 to 32: 4 grey of 9
+
+
+def test_colour_windows_are_mirrored_at_the_border():
+    rgb = np.full((32, 32, 3), 128, np.uint8)
+    rgb[:, :2] = (200, 30, 30)  # two red columns at the left edge
+    hist = colour_histograms(rgb, np.array([[0.0, 16.0]], np.float32), side=5)  # columns -2..2 read as 1, 0, 0, 1, 2
+    assert hist[0].max() == pytest.approx(4 / 5, abs=1e-5)
+
+
+def test_colour_mixes_the_cosines_of_words_and_colours():
+    views = [make_view(seed=s) for s in range(4)]
+    plain = _ColourBoW(_ColourConfig(bow=BoWConfig(k=8, prototypes=4)))
+    coloured = _ColourBoW(_ColourConfig(bow=BoWConfig(k=8, prototypes=4), colour=0.3))
+    plain.fit(views)
+    coloured.fit(views)
+    a, b = coloured.extract(views[0]), coloured.extract(views[1])
+    own = plain.extract(views[0])
+    assert a.descriptors.shape == (len(own), own.descriptors.shape[1] + COLOUR_DIM) and coloured.dim == 8 + COLOUR_DIM
+    np.testing.assert_array_equal(a.descriptors[:, :-COLOUR_DIM], own.descriptors)
+    # The default window: a tenth of the view's side.
+    side = round(0.1 * np.sqrt(views[0].camera.width * views[0].camera.height))
+    np.testing.assert_array_equal(a.descriptors[:, -COLOUR_DIM:], colour_histograms(views[0].rgb, a.positions, side))
+    # The dictionary sees the descriptor's own columns alone: the same words as without colour.
+    np.testing.assert_array_equal(coloured.bow.centroids, plain.bow.centroids)
+    everything = [np.arange(len(a))]
+    na, nb = coloured.pool(a, everything)[0], coloured.pool(b, everything)[0]
+    wa, wb = plain.pool(plain.extract(views[0]), everything)[0], plain.pool(plain.extract(views[1]), everything)[0]
+    ca, cb = (x.descriptors[:, -COLOUR_DIM:].sum(axis=0) for x in (a, b))
+    colour_cosine = ca @ cb / np.linalg.norm(ca) / np.linalg.norm(cb)
+    assert np.linalg.norm(na) == pytest.approx(1.0, abs=1e-5)
+    assert na @ nb == pytest.approx(0.7 * (wa @ wb) + 0.3 * colour_cosine, abs=1e-5)
+    assert colour_cosine < 0.999 and abs(na @ nb - wa @ wb) > 1e-3  # colour moved the cosine
+
+
+def test_a_coloured_bow_descriptor_meets_the_contract_in_every_order():
+    coloured = _ColourBoW(_ColourConfig(bow=BoWConfig(k=8, prototypes=4), colour=0.5))
+    check_descriptor(coloured)
+    check_descriptor_in_all_orders(coloured)

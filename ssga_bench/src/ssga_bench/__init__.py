@@ -25,6 +25,8 @@ _EXPORTS = {
     "BoWDescriptor": "ssga_bench.bow",
     "BoWDescriptorConfig": "ssga_bench.bow",
     "NotFittedError": "ssga_bench.bow",
+    "COLOUR_DIM": "ssga_bench.colour",
+    "colour_histograms": "ssga_bench.colour",
     # learned (torch) stages: weights, device, strict checkpoint loading
     "Learned": "ssga_bench.learned",
     "LearnedConfig": "ssga_bench.learned",

@@ -51,11 +51,15 @@ features with their image-space centres from ``_extract`` and is done; there is
 nothing descriptor-specific in the BoW step besides the Euclidean distance, so give it
 features for which Euclidean distance is meaningful (L2-normalised PNV or RootSIFT are).
 Fitted dictionaries are plain arrays (:meth:`BagOfWords.state_dict`), to cache on disk.
+Colour comes with the base class (``colour > 0`` in the config, :mod:`ssga_bench.colour`):
+override :meth:`BoWDescriptor.colour_window` if your features describe a square of another
+size than a tenth of the view's side.
 """
 
 from __future__ import annotations
 
 import hashlib
+import math
 from collections import OrderedDict
 from collections.abc import Mapping, Sequence
 from typing import Any, ClassVar, Literal
@@ -63,6 +67,7 @@ from typing import Any, ClassVar, Literal
 import numpy as np
 from pydantic import Field, model_validator
 
+from ssga_bench.colour import COLOUR_DIM, colour_histograms, pool_colours
 from ssga_bench.kmeans import BLOCK, as_descriptor_matrix, kmeans
 from ssga_core.data import LocalFeatures, View
 from ssga_core.errors import InputError, SsgaError
@@ -327,6 +332,14 @@ class BoWDescriptorConfig(LocalDescriptorConfig):
     """Base config of a :class:`BoWDescriptor`: subclass it and add the descriptor's own fields."""
 
     bow: BoWConfig = Field(default=BoWConfig(), description="Bag-of-words dictionary and node-feature pooling.")
+    colour: float = Field(
+        default=0.0,
+        ge=0.0,
+        le=1.0,
+        description="Share of a node's similarity given to colour: each local feature also keeps the colour histogram of "
+        "a window around it (CIELAB, 4 x 4 x 4 bins), a node pools its features' into one, and two nodes' cosine is "
+        "(1 - colour) times their words' plus colour times their colours'. 0: the words alone.",
+    )
 
 
 class BoWDescriptor(LocalDescriptor):
@@ -335,6 +348,12 @@ class BoWDescriptor(LocalDescriptor):
     A subclass implements only ``_extract`` (raw local features at pixel positions) and
     gives a ``Config`` with a ``bow: BoWConfig`` field (a :class:`BoWDescriptorConfig`).
     :meth:`fit` must run before pooling; ``dim`` is ``bow.k``.
+
+    With ``colour > 0`` every local feature carries, after its own columns, the colour
+    histogram of the :meth:`colour_window` around it (:mod:`ssga_bench.colour`); the
+    dictionary sees the descriptor's own columns alone, a node's feature is its words
+    (times ``sqrt(1 - colour)``) beside its colours (times ``sqrt(colour)``), both at unit
+    length, and ``dim`` is ``bow.k + COLOUR_DIM``.
     """
 
     Config: ClassVar[type[StageConfig]] = BoWDescriptorConfig
@@ -348,7 +367,31 @@ class BoWDescriptor(LocalDescriptor):
 
     @property
     def dim(self) -> int:
-        return self.bow.dim
+        return self.bow.dim + (COLOUR_DIM if self._colour > 0 else 0)
+
+    @property
+    def _colour(self) -> float:
+        return float(getattr(self.config, "colour", 0.0))
+
+    def extract(self, view: View) -> LocalFeatures:
+        return self._with_colour(view, super().extract(view))
+
+    def extract_many(self, views: Sequence[View]) -> list[LocalFeatures]:
+        return [self._with_colour(view, f) for view, f in zip(views, super().extract_many(views))]
+
+    def colour_window(self, view: View) -> int:
+        """Side in pixels of the square around a local feature whose colours ``colour > 0``
+        keeps: a tenth of the view's side (``sqrt(H W) / 10``, 26 px at 256 x 256, about the
+        spacing of a 12 x 12 grid of features, so that a part's colour is its own and not
+        its neighbours'). A descriptor that knows what its features cover overrides it."""
+        h, w = view.camera.shape
+        return max(round(0.1 * (h * w) ** 0.5), 1)
+
+    def _with_colour(self, view: View, features: LocalFeatures) -> LocalFeatures:
+        if self._colour <= 0:
+            return features
+        colours = colour_histograms(view.rgb, features.positions, self.colour_window(view))
+        return LocalFeatures(positions=features.positions, descriptors=np.concatenate([features.descriptors, colours], axis=1))
 
     def fit(self, views: Sequence[View], labels: Sequence[int] | None = None) -> None:
         """Fit the dictionary on the local features of ``views`` (at most ``bow.max_train``, evenly per view).
@@ -385,12 +428,18 @@ class BoWDescriptor(LocalDescriptor):
             raise NotFittedError(
                 f"descriptor {self.name!r} is not fitted: call fit(training views) to learn its bag-of-words dictionary before pooling"
             )
-        return self.bow.pool(self.bow.encode(self._words(features.descriptors)), members)
+        words = self.bow.pool(self.bow.encode(self._words(features.descriptors)), members)
+        share = self._colour
+        if share <= 0:
+            return words
+        colours = pool_colours(features.descriptors[:, -COLOUR_DIM:], members)
+        # Both halves at unit length, weighed so that the cosine of two nodes mixes the two cosines by `colour`.
+        return np.concatenate([math.sqrt(1 - share) * words, math.sqrt(share) * colours], axis=1)
 
     def _words(self, descriptors: np.ndarray) -> np.ndarray:
-        """The columns of the local features that the dictionary learns and encodes: all of
-        them, unless a subclass keeps something else beside them (dense SIFT's colour)."""
-        return descriptors
+        """The columns of the local features that the dictionary learns and encodes: the
+        descriptor's own, without the colour histograms ``colour > 0`` appends."""
+        return descriptors[:, :-COLOUR_DIM] if self._colour > 0 else descriptors
 
     def state_dict(self) -> dict[str, Any]:
         """The fitted dictionary (:meth:`BagOfWords.state_dict`)."""

@@ -6,11 +6,8 @@ import cv2
 import numpy as np
 import pytest
 from ssga_descriptor_dense_sift.plugin import (
-    COLOUR_BINS,
-    SIFT_DIM,
     DenseSift,
     DenseSiftConfig,
-    colour_histograms,
     grid_positions,
     keypoint_octave,
     root_sift,
@@ -18,6 +15,7 @@ from ssga_descriptor_dense_sift.plugin import (
 
 from ssga_core import Camera, InputError, Pose, View
 from ssga_bench import BoWConfig, NotFittedError
+from ssga_bench import COLOUR_DIM, colour_histograms
 from ssga_bench.testing import check_installed
 from ssga_core.testing import check_descriptor, check_descriptor_in_all_orders, make_view
 
@@ -129,31 +127,13 @@ def test_pooling_needs_fit_and_fit_needs_enough_features():
     DenseSift(DenseSiftConfig(grid=4, bow=BoWConfig(k=20))).fit([make_view(seed=s) for s in range(2)])
 
 
-def test_colour_histograms_are_the_shares_of_each_windows_pixels():
-    # Left half pure grey (L 128 -> bin 2, a = b = 128 -> bin 2), right half saturated red.
-    rgb = np.full((64, 64, 3), 128, np.uint8)
-    rgb[:, 32:] = (200, 30, 30)
-    positions = np.array([[10.0, 32.0], [50.0, 32.0], [31.5, 32.0]], np.float32)
-    hist = colour_histograms(rgb, positions, side=9)
-    np.testing.assert_allclose(hist.sum(axis=1), 1.0, rtol=1e-5)
-    grey = (2 * COLOUR_BINS + 2) * COLOUR_BINS + 2
-    assert hist[0, grey] == pytest.approx(1.0) and hist[1, grey] == 0.0 and hist[1].max() == pytest.approx(1.0)
-    assert hist[2, grey] == pytest.approx(4 / 9, abs=1e-5)  # columns 28-36 round 31.5 to 32: 4 grey of 9
-
-
-def test_colour_mixes_the_cosines_of_words_and_colours():
-    views = [make_view(seed=s) for s in range(6)]
-    plain = DenseSift(DenseSiftConfig(bow=BoWConfig(k=20)))
-    coloured = DenseSift(DenseSiftConfig(bow=BoWConfig(k=20), colour=0.3))
-    plain.fit(views)
-    coloured.fit(views)
-    a, b = coloured.extract(views[0]), coloured.extract(views[1])
-    assert a.descriptors.shape == (144, SIFT_DIM + COLOUR_BINS**3) and coloured.dim == 20 + COLOUR_BINS**3
-    # The dictionary sees the SIFT columns alone: the same words as without colour.
-    np.testing.assert_allclose(coloured.bow.centroids, plain.bow.centroids)
-    na, nb = coloured.pool(a, [np.arange(144)])[0], coloured.pool(b, [np.arange(144)])[0]
-    wa, wb = plain.pool(plain.extract(views[0]), [np.arange(144)])[0], plain.pool(plain.extract(views[1]), [np.arange(144)])[0]
-    ca, cb = (x.descriptors[:, SIFT_DIM:].sum(axis=0) for x in (a, b))
-    colour_cosine = ca @ cb / np.linalg.norm(ca) / np.linalg.norm(cb)
-    assert np.linalg.norm(na) == pytest.approx(1.0, abs=1e-5)
-    assert na @ nb == pytest.approx(0.7 * (wa @ wb) + 0.3 * colour_cosine, abs=1e-5)
+def test_colour_keeps_the_histogram_of_each_keypoints_own_window():
+    # Colour itself (the histograms, the dictionary, the mixed cosine) is the bag of words' (tests/bench/test_bow.py);
+    # dense SIFT gives it the square its SIFT window is centred on: the keypoint's size, 24 px at 256 x 256.
+    view = make_view(seed=3)
+    plain, coloured = DenseSift(DenseSiftConfig()), DenseSift(DenseSiftConfig(colour=0.75))
+    a, own = coloured.extract(view), plain.extract(view)
+    assert coloured.colour_window(view) == 24 and coloured.colour_window(make_view(size=512)) == 48
+    np.testing.assert_array_equal(a.descriptors[:, :128], own.descriptors)
+    np.testing.assert_array_equal(a.descriptors[:, 128:], colour_histograms(view.rgb, own.positions, 24))
+    assert coloured.dim == 100 + COLOUR_DIM

@@ -55,6 +55,21 @@ def test_144_unit_features_of_512_dims_at_the_patch_centres():
     np.testing.assert_allclose(local.positions[::12, 1], centres)
 
 
+def test_colour_sits_beside_the_patch_features_and_leaves_the_words_alone():
+    from ssga_bench import COLOUR_DIM, colour_histograms
+
+    view = make_view()
+    plain, coloured = Pnv(SMALL), Pnv(SMALL.model_copy(update={"colour": 0.5}))
+    a, own = coloured.extract(view), plain.extract(view)
+    np.testing.assert_array_equal(a.descriptors[:, :-COLOUR_DIM], own.descriptors)
+    np.testing.assert_array_equal(a.descriptors[:, -COLOUR_DIM:], colour_histograms(view.rgb, own.positions, 26))
+    views = [make_view(seed=s) for s in range(2)]
+    plain.fit(views)
+    coloured.fit(views)
+    np.testing.assert_array_equal(coloured.bow.centroids, plain.bow.centroids)
+    assert coloured.pool(a, [np.arange(len(a))]).shape == (1, 16 + COLOUR_DIM)
+
+
 def test_other_sizes_are_resized_to_256_and_positions_scaled_back():
     d = Pnv(RANDOM)
     view = _view(320, 192)

@@ -11,7 +11,6 @@ reciprocal-rank votes, NBNN, pooling) is :class:`ssga_bench.bow.BoWDescriptor`'s
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
 from typing import Literal
 
 import cv2
@@ -42,14 +41,7 @@ class DenseSiftConfig(BoWDescriptorConfig):
         description="OpenCV keypoint size (px) at 256 x 256, scaled by sqrt(H W) / 256; the descriptor's Gaussian window has sigma 3x this.",
     )
     root_sift: bool = Field(default=False, description="RootSIFT (L1-normalise, then square root); otherwise L2-normalised SIFT.")
-    colour: float = Field(
-        default=0.0,
-        ge=0.0,
-        le=1.0,
-        description="Share of a node's similarity given to colour: each keypoint also keeps the colour histogram of its "
-        "window (CIELAB, 4 x 4 x 4 bins), a node pools its keypoints' into one, and two nodes' cosine is (1 - colour) times "
-        "their words' plus colour times their colours'. 0: grey SIFT words alone.",
-    )
+
 
 
 def grid_positions(shape: tuple[int, int], grid: int, layout: str = "pnv") -> np.ndarray:
@@ -79,43 +71,6 @@ def keypoint_octave(size: float) -> int:
     if layer == _SIFT_LAYERS:
         octave, layer = octave + 1, 0
     return octave | (layer << 8)
-
-
-SIFT_DIM = 128
-
-COLOUR_BINS = 4
-"""Bins per CIELAB channel of a keypoint's colour histogram (4 x 4 x 4 = 64)."""
-
-_AB_RANGE = (96.0, 160.0)
-"""OpenCV's 8-bit a and b (128 is grey) that the bins span; rooms' colours lie well inside
-0-255, so the full range would leave most of them in the two middle bins."""
-
-
-def colour_histograms(rgb: np.ndarray, positions: np.ndarray, side: int) -> np.ndarray:
-    """``(N, 64)`` float32: the CIELAB histogram of the ``side x side`` window around each
-    position, as shares of its pixels (mirrored at the image's border)."""
-    lab = cv2.cvtColor(rgb, cv2.COLOR_RGB2LAB).astype(np.float32)
-    lightness = np.minimum(lab[..., 0] * COLOUR_BINS / 256.0, COLOUR_BINS - 1).astype(np.intp)
-    lo, hi = _AB_RANGE
-    ab = np.clip((lab[..., 1:] - lo) * COLOUR_BINS / (hi - lo), 0, COLOUR_BINS - 1).astype(np.intp)
-    bins = (lightness * COLOUR_BINS + ab[..., 0]) * COLOUR_BINS + ab[..., 1]
-    h, w = bins.shape
-    # Only the windows' own pixels are counted (144 windows read a fraction of the image's
-    # histogram maps a box filter per bin would make), one bincount for all of them.
-    offsets = np.arange(side) - side // 2
-    rows = _mirrored(np.clip(np.rint(positions[:, 1]), 0, h - 1).astype(np.intp)[:, None] + offsets, h)
-    cols = _mirrored(np.clip(np.rint(positions[:, 0]), 0, w - 1).astype(np.intp)[:, None] + offsets, w)
-    window_bins = bins[rows[:, :, None], cols[:, None, :]].reshape(len(positions), -1)
-    nbins = COLOUR_BINS**3
-    keyed = window_bins + nbins * np.arange(len(positions))[:, None]
-    counts = np.bincount(keyed.ravel(), minlength=nbins * len(positions)).reshape(len(positions), nbins)
-    return (counts / float(side * side)).astype(np.float32)
-
-
-def _mirrored(index: np.ndarray, n: int) -> np.ndarray:
-    """Indices past either end of ``0..n-1`` reflected back in, edge pixel repeated (OpenCV's BORDER_REFLECT)."""
-    index = np.where(index < 0, -index - 1, index)
-    return np.where(index >= n, 2 * n - index - 1, index)
 
 
 def root_sift(descriptors: np.ndarray) -> np.ndarray:
@@ -148,29 +103,12 @@ class DenseSift(BoWDescriptor):
         else:
             norm = np.linalg.norm(descriptors, axis=1, keepdims=True)
             descriptors = np.divide(descriptors, norm, out=np.zeros_like(descriptors), where=norm > 0)
-        if cfg.colour > 0:
-            window = max(int(round(size)), 1)
-            descriptors = np.concatenate([descriptors, colour_histograms(view.rgb, positions, window)], axis=1)
         return LocalFeatures(positions=positions, descriptors=descriptors)
 
-    @property
-    def dim(self) -> int:
-        return self.bow.dim + (COLOUR_BINS**3 if self.config.colour > 0 else 0)
-
-    def _words(self, descriptors: np.ndarray) -> np.ndarray:
-        return descriptors[:, :SIFT_DIM]
-
-    def _pool(self, features: LocalFeatures, members: Sequence[np.ndarray]) -> np.ndarray:
-        words = super()._pool(features, members)
-        share = self.config.colour
-        if share <= 0:
-            return words
-        colours = features.descriptors[:, SIFT_DIM:]
-        pooled = np.stack([colours[np.asarray(m, dtype=np.intp)].sum(axis=0) for m in members]) if len(members) else np.zeros((0, colours.shape[1]), np.float32)
-        norm = np.linalg.norm(pooled, axis=1, keepdims=True)
-        pooled = np.divide(pooled, norm, out=np.zeros_like(pooled), where=norm > 0).astype(np.float32)
-        # Both halves at unit length, weighed so that a cosine of two nodes mixes the two cosines by `colour`.
-        return np.concatenate([math.sqrt(1 - share) * words, math.sqrt(share) * pooled], axis=1)
+    def colour_window(self, view: View) -> int:
+        """A keypoint's size: the colours of the square its SIFT window is centred on (``colour > 0``)."""
+        h, w = view.camera.shape
+        return max(int(round(self.config.keypoint_size * math.sqrt(h * w) / 256.0)), 1)
 
 
 @hookimpl
