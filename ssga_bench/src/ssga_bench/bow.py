@@ -381,9 +381,9 @@ class BoWDescriptor(LocalDescriptor):
 
     def colour_window(self, view: View) -> int:
         """Side in pixels of the square around a local feature whose colours ``colour > 0``
-        keeps: a tenth of the view's side (``sqrt(H W) / 10``, 26 px at 256 x 256, about the
-        spacing of a 12 x 12 grid of features, so that a part's colour is its own and not
-        its neighbours'). A descriptor that knows what its features cover overrides it."""
+        keeps: a tenth of the view's side (``sqrt(H W) / 10``, 26 px at 256 x 256, a little more
+        than the 16 px between the features of a 12 x 12 grid, so that a part's colour is its
+        own and not its neighbours'). A descriptor that knows what its features cover overrides it."""
         h, w = view.camera.shape
         return max(round(0.1 * (h * w) ** 0.5), 1)
 

@@ -43,7 +43,6 @@ class DenseSiftConfig(BoWDescriptorConfig):
     root_sift: bool = Field(default=False, description="RootSIFT (L1-normalise, then square root); otherwise L2-normalised SIFT.")
 
 
-
 def grid_positions(shape: tuple[int, int], grid: int, layout: str = "pnv") -> np.ndarray:
     """``(grid * grid, 2)`` float32 keypoint centres ``(u, v)``, row by row, for an image of ``shape`` (H, W)."""
     h, w = shape
