@@ -67,7 +67,7 @@ from typing import Any, ClassVar, Literal
 import numpy as np
 from pydantic import Field, model_validator
 
-from ssga_bench.colour import COLOUR_DIM, colour_histograms, pool_colours
+from ssga_bench.colour import COLOUR_DIM, colour_histograms
 from ssga_bench.kmeans import BLOCK, as_descriptor_matrix, kmeans
 from ssga_core.data import LocalFeatures, View
 from ssga_core.errors import InputError, SsgaError
@@ -141,6 +141,16 @@ def normalise_rows(x: np.ndarray, norm: Literal["l2", "l1", "none"]) -> np.ndarr
         return x
     n = np.linalg.norm(x, axis=1) if norm == "l2" else np.abs(x).sum(1)
     return np.divide(x, n[:, None], out=np.zeros_like(x), where=n[:, None] > 0)
+
+
+def pool_rows(rows: np.ndarray, members: Sequence[np.ndarray], norm: Literal["l2", "l1", "none"]) -> np.ndarray:
+    """``(N, D)`` float32: each node's summed member ``rows`` (``(M, D)``), normalised; zeros for an empty node."""
+    out = np.zeros((len(members), rows.shape[1]), dtype=np.float32)
+    for i, idx in enumerate(members):
+        idx = np.asarray(idx, dtype=np.intp)
+        if idx.size:
+            out[i] = rows[idx].sum(axis=0)
+    return normalise_rows(out, norm)
 
 
 # --------------------------------------------------------------------------- dictionary
@@ -272,12 +282,7 @@ class BagOfWords:
         codes = np.asarray(codes, dtype=np.float32)
         if codes.ndim != 2 or codes.shape[1] != self.dim:
             raise InputError(f"BagOfWords.pool: expected (M, {self.dim}) codes, got shape {codes.shape}")
-        out = np.zeros((len(members), self.dim), dtype=np.float32)
-        for i, idx in enumerate(members):
-            idx = np.asarray(idx, dtype=np.intp)
-            if idx.size:
-                out[i] = codes[idx].sum(axis=0)
-        return normalise_rows(out, self.config.norm)
+        return pool_rows(codes, members, self.config.norm)
 
     def state_dict(self) -> dict[str, np.ndarray]:
         """The fitted dictionary as plain arrays (``centroids``, ``prototypes``), e.g. for ``np.savez``."""
@@ -417,7 +422,7 @@ class BoWDescriptor(LocalDescriptor):
         rng = np.random.default_rng(cfg.seed)
         chunks = []
         for view in views:
-            d = self._words(self.extract(view).descriptors)
+            d = super().extract(view).descriptors  # the descriptor's own columns: no colour to compute and drop
             if len(d) > per_view:
                 d = d[np.sort(rng.choice(len(d), per_view, replace=False))]
             chunks.append(d)
@@ -432,7 +437,7 @@ class BoWDescriptor(LocalDescriptor):
         share = self._colour
         if share <= 0:
             return words
-        colours = pool_colours(features.descriptors[:, -COLOUR_DIM:], members)
+        colours = pool_rows(features.descriptors[:, -COLOUR_DIM:], members, "l2")
         # Both halves at unit length, weighed so that the cosine of two nodes mixes the two cosines by `colour`.
         return np.concatenate([math.sqrt(1 - share) * words, math.sqrt(share) * colours], axis=1)
 

@@ -5,12 +5,10 @@ dictionary of ``k`` words keeps little of the colour a learned descriptor saw. A
 descriptor with ``colour > 0`` (:class:`ssga_bench.bow.BoWDescriptorConfig`) keeps, beside
 each local feature, the colour histogram of a square window around it; a node sums its
 features' histograms, and two nodes' cosine mixes their words' and their colours'
-(:meth:`ssga_bench.bow.BoWDescriptor.pool`; docs/experiments.md, "Colour in the parts").
+(:class:`ssga_bench.bow.BoWDescriptor`; docs/experiments.md, "Colour in the parts").
 """
 
 from __future__ import annotations
-
-from collections.abc import Sequence
 
 import cv2
 import numpy as np
@@ -51,13 +49,3 @@ def _mirrored(index: np.ndarray, n: int) -> np.ndarray:
     index = np.where(index < 0, -index - 1, index)
     return np.where(index >= n, 2 * n - index - 1, index)
 
-
-def pool_colours(histograms: np.ndarray, members: Sequence[np.ndarray]) -> np.ndarray:
-    """``(N, COLOUR_DIM)`` float32: each node's summed member histograms at unit length (zeros for an empty node)."""
-    pooled = np.zeros((len(members), histograms.shape[1]), np.float32)
-    for i, idx in enumerate(members):
-        idx = np.asarray(idx, dtype=np.intp)
-        if idx.size:
-            pooled[i] = histograms[idx].sum(axis=0)
-    norm = np.linalg.norm(pooled, axis=1, keepdims=True)
-    return np.divide(pooled, norm, out=np.zeros_like(pooled), where=norm > 0)
