@@ -148,6 +148,30 @@ def test_ensemble_against_each_variant():
     assert "| noise | +" in md and "- L2: does not beat every variant (better than 1, tie with 1, worse than 0 of 2)" in md
 
 
+def test_ceilings_of_a_choice_among_the_variants_by_hand():
+    # Four views of three classes; "a" is right on views 0 and 1, "b" on views 1 and 2, neither on view 3.
+    truth = np.array([0, 1, 2, 0])
+    a = np.array([[3, 2, 1], [1, 3, 2], [3, 2, 1], [1, 3, 2]], dtype=float)  # truth ranks 1, 1, 3, 3
+    b = np.array([[2, 3, 1], [1, 3, 2], [1, 2, 3], [2, 3, 1]], dtype=float)  # truth ranks 2, 1, 1, 2
+    groups = {"L1": np.array([True, True, False, False]), "L2": np.array([False, False, True, True])}
+    report = Report.build("ws", {"a": a, "b": b}, truth, groups=groups, num_classes=3, ensemble=("E", a))
+    # Per view the better rank is 1, 1, 1, 2.
+    assert report.best_variant_per_view("L1") == pytest.approx(100)
+    assert report.best_variant_per_view("L2") == pytest.approx(100 * (1 + 1 / 2) / 2)
+    assert report.best_variant_per_view("all", "top1") == pytest.approx(75)
+    # a's hits {0, 1}, b's {1, 2}: one shared of the three either gets.
+    shared = report.shared_hits()
+    assert shared["a"]["b"] == pytest.approx(100 / 3) and shared["a"]["a"] == pytest.approx(100)
+    md = report.markdown()
+    assert "| the best variant for each view | 100.0 | 75.0 | 87.5 |" in md
+    # a: MRR 100 at L1, 33.3 at L2, 66.7 in all; b: 75, 75, 75.
+    assert "| the best variant of each level | 100.0 (a) | 75.0 (b) | 75.0 (b) |" in md
+    assert "| a | 100 | 33 |" in md
+    js = report.to_json()
+    assert js["shared_top1_hits"]["b"]["a"] == pytest.approx(100 / 3, abs=1e-4)
+    assert js["best_variant_per_view_mrr"]["L2"] == pytest.approx(75)
+
+
 def test_thin_and_empty_groups_are_named():
     truth = np.array([0, 1])
     groups = level_groups(np.array([1, 1]))
@@ -191,6 +215,10 @@ def test_bench_summary_over_seeds():
     assert "E chosen on validation" in md and "E of good" not in md  # so is an ensemble whose members were chosen
     assert "| 0 | 40 | 40 | 40 | 60 | 60 | 120 |" in md
     assert "seed 1 L3" in md and "| noise | +" in md
+    r = runs[1].report
+    ceiling = " / ".join(f"{r.best_variant_per_view(g):.1f}" for g in ("L1", "L2", "L3"))
+    of_level = " / ".join(f"{max(r.table[v][g]['mrr'] for v in r.variants):.1f}" for g in ("L1", "L2", "L3"))
+    assert f"| {of_level} | {ceiling} |" in md
     assert "| variants | 6.0 | 6.0 | 60.0 |" in md and "| train | 1.0 | 2.0 |" in md
     assert "takes 26.7% of the work: over the target" in md  # (1/5 + 2/6) / 2
     # 120 test views in 10 s, against 80 views in 4 s of describing on one worker.

@@ -156,6 +156,22 @@ def _ensemble_lines(runs: dict[int, SeedRun], groups: Sequence[str] = ("L2", "L3
     return lines
 
 
+def _ceiling_lines(runs: dict[int, SeedRun], groups: Sequence[str] = ("L1", "L2", "L3")) -> list[str]:
+    """Per seed: the ensemble, the best variant of each level and the best variant for each view."""
+    lines = [f"{' / '.join(groups)}, as a seed has them:", ""]
+    lines += ["| seed | ensemble | the best variant of each level | the best variant for each view |", "|---|---:|---:|---:|"]
+    for s in sorted(runs):
+        report = runs[s].report
+        if not report.variants:
+            continue
+        present = [g for g in groups if report.counts.get(g)]
+        ensemble = " / ".join(f"{report.rows[report.ensemble].stats[g]['mrr'].value:.1f}" for g in present)
+        of_level = " / ".join(f"{max(report.rows[v].stats[g]['mrr'].value for v in report.variants):.1f}" for g in present)
+        per_view = " / ".join(f"{report.best_variant_per_view(g):.1f}" for g in present)
+        lines.append(f"| {s} | {ensemble} | {of_level} | {per_view} |")
+    return lines
+
+
 def _phase_lines(runs: dict[int, SeedRun]) -> list[str]:
     seeds = sorted(runs)
     lines = ["Wall time of each phase of the run (the workers' work overlaps within a phase):", ""]
@@ -222,5 +238,7 @@ def bench_summary(runs: dict[int, SeedRun]) -> str:
         lines += ["", "Not run:", *(f"- {line}" for line in not_run)]
     lines += ["", "## Ensemble vs every single variant (MRR, percentage points, paired 95% interval per seed)", ""]
     lines += _ensemble_lines(runs)
+    lines += ["", "## What choosing among the variants could reach (MRR, read on the test labels: ceilings, not results)", ""]
+    lines += _ceiling_lines(runs)
     lines += ["", "## Where the time goes", "", *_phase_lines(runs)]
     return "\n".join(lines) + "\n"

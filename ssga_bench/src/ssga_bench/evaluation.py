@@ -360,6 +360,54 @@ class Report:
         ens, other = (per_query(self.true_ranks[label][mask], metric) for label in (self.ensemble, member))
         return mean_interval(ens - other)
 
+    # -- what a choice among the variants could reach ------------------------------------------
+    # Both read the test labels: they say how much a fusion of these variants could gain, never
+    # what one gains (the ensemble row does, choosing only on validation views).
+
+    def best_variant_per_view(self, group: str = "all", metric: str = "mrr") -> float:
+        """``metric`` if each test view took the variant that ranks its true class best."""
+        if not self.variants or not self.counts[group]:
+            return math.nan
+        best = np.min(np.stack([self.true_ranks[v][self.masks[group]] for v in self.variants]), axis=0)
+        return float(per_query(best, metric).mean())
+
+    def shared_hits(self) -> dict[str, dict[str, float]]:
+        """For two variants, the share (%) of the test views that either puts first (its Top-1)
+        which both put first: 100 where they are right on the same views, so fusing them can
+        add nothing; low where each knows views the other does not."""
+        hits = {v: self.true_ranks[v] == 1 for v in self.variants}
+        out: dict[str, dict[str, float]] = {}
+        for a in self.variants:
+            out[a] = {}
+            for b in self.variants:
+                either = int(np.sum(hits[a] | hits[b]))
+                out[a][b] = 100.0 * np.sum(hits[a] & hits[b]) / either if either else math.nan
+        return out
+
+    def ceiling_lines(self, metric: str = "mrr") -> list[str]:
+        """Markdown: the ensemble beside what choosing among its variants on the test labels would reach."""
+        groups = [g for g in self.levels if self.counts[g]]
+        by_level = {g: max(self.variants, key=lambda v: self.rows[v].stats[g][metric].value) for g in groups}
+        lines = ["| " + METRIC_TITLES[metric] + " | " + " | ".join(groups) + " |", "|---|" + "---:|" * len(groups)]
+        lines.append(f"| {self.ensemble} | " + " | ".join(f"{self.rows[self.ensemble].stats[g][metric].value:.1f}" for g in groups) + " |")
+        lines.append(
+            "| the best variant of each level | "
+            + " | ".join(f"{self.rows[v].stats[g][metric].value:.1f} ({v})" for g, v in by_level.items())
+            + " |"
+        )
+        lines.append("| the best variant for each view | " + " | ".join(f"{self.best_variant_per_view(g, metric):.1f}" for g in groups) + " |")
+        shared = self.shared_hits()
+        lines += [
+            "",
+            "Top-1 hits two variants share: of the test views either puts first, the share (%) both do. Fusion can "
+            "only gain on the views where they differ, and only if their scores tell which one is right there.",
+            "",
+            "| | " + " | ".join(self.variants) + " |",
+            "|---|" + "---:|" * len(self.variants),
+            *(f"| {a} | " + " | ".join("–" if math.isnan(x) else f"{x:.0f}" for x in shared[a].values()) + " |" for a in self.variants),
+        ]
+        return lines + [""]
+
     # -- outputs ---------------------------------------------------------------------------
 
     def _name(self, label: str) -> str:
@@ -406,6 +454,8 @@ class Report:
             lines += ["#### Flags (⚠)", "", *(f"- {label}: {'; '.join(flags)}" for label, flags in flagged), ""]
         if self.variants:
             lines += [f"#### {self.ensemble} against each variant (MRR, percentage points)", "", *self.comparison_lines()]
+            lines += ["#### What choosing among the variants could reach (read on the test labels: ceilings, not results)", ""]
+            lines += self.ceiling_lines()
         thin = self.thin_groups()
         lines.append(
             f"Too thin to read (n < {THIN}): " + ", ".join(f"{g} (n={n})" for g, n in thin.items())
@@ -446,6 +496,8 @@ class Report:
             ],
             "not_run": self.not_run,
             "ensemble_vs_variant_mrr": {v: {g: self.compare(v, g).to_json() for g in self.counts} for v in self.variants},
+            "best_variant_per_view_mrr": {g: _finite(self.best_variant_per_view(g)) for g in self.counts},
+            "shared_top1_hits": {a: {b: _finite(x) for b, x in row.items()} for a, row in self.shared_hits().items()},
         }
 
     def plot(self) -> bytes:
