@@ -165,8 +165,8 @@ def _ceiling_lines(runs: dict[int, SeedRun], groups: Sequence[str] = ("L1", "L2"
         if not report.variants:
             continue
         present = [g for g in groups if report.counts.get(g)]
-        ensemble = " / ".join(f"{report.rows[report.ensemble].stats[g]['mrr'].value:.1f}" for g in present)
-        of_level = " / ".join(f"{max(report.rows[v].stats[g]['mrr'].value for v in report.variants):.1f}" for g in present)
+        ensemble = " / ".join(f"{report.table[report.ensemble][g]['mrr']:.1f}" for g in present)
+        of_level = " / ".join(f"{report.table[report.best_variant_of_level(g)][g]['mrr']:.1f}" for g in present)
         per_view = " / ".join(f"{report.best_variant_per_view(g):.1f}" for g in present)
         lines.append(f"| {s} | {ensemble} | {of_level} | {per_view} |")
     return lines

@@ -364,6 +364,10 @@ class Report:
     # Both read the test labels: they say how much a fusion of these variants could gain, never
     # what one gains (the ensemble row does, choosing only on validation views).
 
+    def best_variant_of_level(self, group: str, metric: str = "mrr") -> str:
+        """The variant with the best ``metric`` on this group's test views."""
+        return max(self.variants, key=lambda v: self.rows[v].stats[group][metric].value)
+
     def best_variant_per_view(self, group: str = "all", metric: str = "mrr") -> float:
         """``metric`` if each test view took the variant that ranks its true class best."""
         if not self.variants or not self.counts[group]:
@@ -387,7 +391,7 @@ class Report:
     def ceiling_lines(self, metric: str = "mrr") -> list[str]:
         """Markdown: the ensemble beside what choosing among its variants on the test labels would reach."""
         groups = [g for g in self.levels if self.counts[g]]
-        by_level = {g: max(self.variants, key=lambda v: self.rows[v].stats[g][metric].value) for g in groups}
+        by_level = {g: self.best_variant_of_level(g, metric) for g in groups}
         lines = ["| " + METRIC_TITLES[metric] + " | " + " | ".join(groups) + " |", "|---|" + "---:|" * len(groups)]
         lines.append(f"| {self.ensemble} | " + " | ".join(f"{self.rows[self.ensemble].stats[g][metric].value:.1f}" for g in groups) + " |")
         lines.append(
