@@ -281,6 +281,42 @@ def test_a_fusion_learned_on_validation_is_reported_beside_the_papers(tmp_path, 
     assert row not in again.rows and not (tmp_path / "out" / "fusion.json").exists()
 
 
+def test_a_learned_ensemble_row_keeps_the_papers_fusion_beside_it_over_all_and_over_the_chosen(tmp_path, stand_in_registry):
+    from ssga_fuser_rrf.plugin import ReciprocalRankFusion
+
+    from ssga_bench.evaluation import truth_ranks
+    from ssga_bench.fusion import choose_members
+
+    validated = build_dataset(
+        WallWorkspaceSource().open(), tmp_path / "ds", source={"name": "test-wall"}, protocol=ProtocolConfig(cells=2, test_per_class=2, val_per_class=2, seed=4)
+    )
+    exp = validate_experiment(
+        {
+            "workspace": {"name": "test-wall"},
+            "stages": {"parser": {"name": "test-stripes"}, "descriptor": {"name": "test-patch-colour"}, "synthesizer": {"name": "test-shift"}},
+            "variants": ["PDS", "PD", "SD"],
+            "protocol": {"val_per_class": 2},
+            "training": {"classifier": "graph-match"},
+            "fuser": {"name": "stacking"},
+            "ensemble": {"also": [{"name": "rrf"}]},
+        },
+        stand_in_registry,
+    )
+    report, _ = run_experiment(exp, validated, tmp_path / "out")
+    assert report.ensemble == "Ensemble (STK)"
+    folders = {"PC-ST (PDS)": "PC-ST_PDS", "PC-ST (PD)": "PC-ST_PD", "PC (SD)": "PC_SD"}
+    val = {label: np.load(tmp_path / "out" / "variants" / f / "val_scores.npy") for label, f in folders.items()}
+    test = {label: np.load(tmp_path / "out" / "variants" / f / "scores.npy") for label, f in folders.items()}
+    rrf = ReciprocalRankFusion()
+    members = choose_members(val, np.array([s.place for s in validated.split("val")]), rrf)
+    chosen = f"Ensemble (RRF) of {len(members)} chosen on validation: " + ", ".join(members)
+    truth = np.array([s.place for s in validated.split("test")])
+    for row, fused in ((chosen, rrf.fuse(np.stack([test[m] for m in members]))), ("Ensemble (RRF) of all", rrf.fuse(np.stack(list(test.values()))))):
+        assert report.rows[row].kind == "reference"
+        np.testing.assert_array_equal(report.true_ranks[row], truth_ranks(fused, truth))
+    assert report.rows[chosen].key == "Ensemble (RRF) chosen on validation"  # one row across seeds, whatever each chose
+
+
 @pytest.mark.parametrize(
     ("config", "problem"),
     [

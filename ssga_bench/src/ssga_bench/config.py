@@ -171,7 +171,8 @@ class EnsembleConfig(Strict):
         default_factory=list,
         max_length=8,
         description="More fusion rules reported beside the ensemble, each over every variant, e.g. [{ name = 'stacking' }]: "
-        "a rule learned on the validation views (needs protocol.val_per_class > 0) beside the paper's reciprocal-rank fusion.",
+        "a rule learned on the validation views (needs protocol.val_per_class > 0) beside the paper's reciprocal-rank fusion. "
+        "A rule that does not learn is also reported over the members chosen for it on the validation views.",
     )
 
 

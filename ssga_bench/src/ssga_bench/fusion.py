@@ -79,9 +79,10 @@ def fuse_variants(
     assert isinstance(fuser, Fuser)
     labels = [rv.label for rv in experiment.variants if rv.label in results]
     references: dict[str, np.ndarray] = {}
+    series: dict[str, str] = {}
     best_single = None
-    chosen = labels
     learned: dict[str, Any] = {}
+    val_scores = {label: results[label].val for label in labels}
 
     def fused(rule: Fuser, members: list[str]) -> np.ndarray:
         """The test views' fused scores; a learned rule is first fitted on the validation views."""
@@ -92,31 +93,37 @@ def fuse_variants(
             learned[f"Ensemble ({rule.tag()})"] = {"members": members, **rule.learned()}
         return rule.fuse(np.stack([results[label].test for label in members]))
 
+    def over_chosen(rule: Fuser) -> tuple[str, np.ndarray]:
+        """``rule`` over the members forward selection picks for it on the validation views: its row."""
+        members = choose_members(val_scores, val_truth, rule)
+        label = f"Ensemble ({rule.tag()}) of {len(members)} chosen on validation: " + ", ".join(members)
+        series[label] = f"Ensemble ({rule.tag()}) chosen on validation"
+        return label, fused(rule, members)
+
     if len(vals):
-        val_scores = {label: results[label].val for label in labels}
         best_single = max(labels, key=lambda label: float(np.mean(1.0 / truth_ranks(val_scores[label], val_truth))))
-        if not fuser.learns:  # a learned rule weighs its members itself (config validation says so)
-            chosen = choose_members(val_scores, val_truth, fuser)
     ensemble_label = f"Ensemble ({fuser.tag()})"
     with timings.phase("evaluate"):
         fused_all = fused(fuser, labels)
-        fused_chosen = fuser.fuse(np.stack([results[label].test for label in chosen])) if chosen != labels else fused_all
-    selected_label = f"Ensemble ({fuser.tag()}) of {len(chosen)} chosen on validation: " + ", ".join(chosen)
-    series = {selected_label: f"Ensemble ({fuser.tag()}) chosen on validation"}
-    if config.ensemble.members == "validation" and len(vals):
-        ensemble = (selected_label, fused_chosen)
+        # A rule that learns weighs its members itself (config validation says so); any other is
+        # reported over all the variants and over the members chosen for it.
+        chosen = over_chosen(fuser) if len(vals) and not fuser.learns else None
+    if config.ensemble.members == "validation" and chosen is not None:
+        ensemble = chosen
         references[ensemble_label + " of all"] = fused_all
     else:
         ensemble = (ensemble_label, fused_all)
-        if len(vals) and not fuser.learns:
-            references[selected_label] = fused_chosen
+        if chosen is not None:
+            references[chosen[0]] = chosen[1]
     for also in experiment.also:
         rule = also.create()
         assert isinstance(rule, Fuser)
         with timings.phase("evaluate"):
             label = f"Ensemble ({rule.tag()}) of all" + (", learned on validation" if rule.learns else "")
             references[label] = fused(rule, labels)
-        series[label] = f"Ensemble ({rule.tag()})"
+            series[label] = f"Ensemble ({rule.tag()})"
+            if len(vals) and not rule.learns:
+                references.update([over_chosen(rule)])
     if learned:
         write_json(out / "fusion.json", learned)
     else:  # a rerun with no learned rule leaves no stale weights
