@@ -232,25 +232,27 @@ def test_graph_matching_classifies_without_training_a_network(tmp_path, dataset,
     assert again.markdown() == report.markdown()
 
 
+def _with_validation_views(tmp_path, registry, fusion):
+    """A wall workspace with validation views, and three graph-matching variants fused as ``fusion`` says."""
+    validated = build_dataset(
+        WallWorkspaceSource().open(), tmp_path / "ds", source={"name": "test-wall"}, protocol=ProtocolConfig(cells=2, test_per_class=2, val_per_class=2, seed=4)
+    )
+    config = {
+        "workspace": {"name": "test-wall"},
+        "stages": {"parser": {"name": "test-stripes"}, "descriptor": {"name": "test-patch-colour"}, "synthesizer": {"name": "test-shift"}},
+        "variants": ["PDS", "PD", "SD"],
+        "protocol": {"val_per_class": 2},
+        "training": {"classifier": "graph-match"},
+    }
+    return validated, validate_experiment({**config, **fusion}, registry)
+
+
 def test_a_fusion_learned_on_validation_is_reported_beside_the_papers(tmp_path, stand_in_registry):
     from ssga_fuser_stacking.plugin import Stacking
 
     from ssga_bench.evaluation import truth_ranks
 
-    validated = build_dataset(
-        WallWorkspaceSource().open(), tmp_path / "ds", source={"name": "test-wall"}, protocol=ProtocolConfig(cells=2, test_per_class=2, val_per_class=2, seed=4)
-    )
-    exp = validate_experiment(
-        {
-            "workspace": {"name": "test-wall"},
-            "stages": {"parser": {"name": "test-stripes"}, "descriptor": {"name": "test-patch-colour"}, "synthesizer": {"name": "test-shift"}},
-            "variants": ["PDS", "PD", "SD"],
-            "protocol": {"val_per_class": 2},
-            "training": {"classifier": "graph-match"},
-            "ensemble": {"also": [{"name": "stacking"}]},
-        },
-        stand_in_registry,
-    )
+    validated, exp = _with_validation_views(tmp_path, stand_in_registry, {"ensemble": {"also": [{"name": "stacking"}]}})
     report, _ = run_experiment(exp, validated, tmp_path / "out")
     row = "Ensemble (STK) of all, learned on validation"
     assert row in report.rows and row in report.markdown()
@@ -287,21 +289,7 @@ def test_a_learned_ensemble_row_keeps_the_papers_fusion_beside_it_over_all_and_o
     from ssga_bench.evaluation import truth_ranks
     from ssga_bench.fusion import choose_members
 
-    validated = build_dataset(
-        WallWorkspaceSource().open(), tmp_path / "ds", source={"name": "test-wall"}, protocol=ProtocolConfig(cells=2, test_per_class=2, val_per_class=2, seed=4)
-    )
-    exp = validate_experiment(
-        {
-            "workspace": {"name": "test-wall"},
-            "stages": {"parser": {"name": "test-stripes"}, "descriptor": {"name": "test-patch-colour"}, "synthesizer": {"name": "test-shift"}},
-            "variants": ["PDS", "PD", "SD"],
-            "protocol": {"val_per_class": 2},
-            "training": {"classifier": "graph-match"},
-            "fuser": {"name": "stacking"},
-            "ensemble": {"also": [{"name": "rrf"}]},
-        },
-        stand_in_registry,
-    )
+    validated, exp = _with_validation_views(tmp_path, stand_in_registry, {"fuser": {"name": "stacking"}, "ensemble": {"also": [{"name": "rrf"}]}})
     report, _ = run_experiment(exp, validated, tmp_path / "out")
     assert report.ensemble == "Ensemble (STK)"
     folders = {"PC-ST (PDS)": "PC-ST_PDS", "PC-ST (PD)": "PC-ST_PD", "PC (SD)": "PC_SD"}
