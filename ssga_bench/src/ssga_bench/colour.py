@@ -48,4 +48,3 @@ def _mirrored(index: np.ndarray, n: int) -> np.ndarray:
     """Indices past either end of ``0..n-1`` reflected back in, edge pixel repeated (OpenCV's BORDER_REFLECT)."""
     index = np.where(index < 0, -index - 1, index)
     return np.where(index >= n, 2 * n - index - 1, index)
-

@@ -361,7 +361,7 @@ class Report:
         return mean_interval(ens - other)
 
     # -- what a choice among the variants could reach ------------------------------------------
-    # Both read the test labels: they say how much a fusion of these variants could gain, never
+    # These read the test labels: they say how much a fusion of these variants could gain, never
     # what one gains (the ensemble row does, choosing only on validation views).
 
     def best_variant_of_level(self, group: str, metric: str = "mrr") -> str:
