@@ -105,7 +105,7 @@ def test_runs_fuses_reports_and_resumes(tmp_path, dataset, stand_in_registry, mo
     monkeypatch.setattr("ssga_bench.variant_training.train_gcn", no_training)
     # Nor is a real view looked at again, nor a finished variant handed to a worker.
     monkeypatch.setattr("ssga_bench.tasks.describe_views", no_task)
-    monkeypatch.setattr("ssga_bench.experiment.train_variant", no_task)
+    monkeypatch.setattr("ssga_bench.experiment.prepare_variant", no_task)
     monkeypatch.setattr("ssga_bench.experiment.score_chunk", no_task)
     again, _ = run_experiment(exp, dataset, tmp_path)
     assert again.markdown() == report.markdown()
@@ -184,6 +184,38 @@ def test_variants_without_s_train_every_class_of_a_cell_on_its_real_graph(tmp_pa
     run_experiment(exp, dataset, tmp_path / "real-only")
     _, labels = without_s(list(seen.values())[first_run:])
     assert sorted(labels) == sorted(s.place for s in dataset.split("train"))
+
+
+def test_the_pseudo_views_graphs_built_in_chunks_are_those_the_pipeline_builds_whole(tmp_path, dataset, stand_in_registry, monkeypatch):
+    from ssga_bench import variant_training
+    from ssga_core.pipeline import fitting_pseudo_views, training_graphs
+
+    seen, chunks = {}, []
+    fit, build = variant_training._fit_classifier, variant_training.pseudo_graphs
+
+    def recording(graphs, labels, groups, num_classes, training, folder):
+        seen[folder.parent.name, folder.name] = (list(graphs), list(labels), groups.copy())  # variants/ or oracle/
+        return fit(graphs, labels, groups, num_classes, training, folder)
+
+    monkeypatch.setattr("ssga_bench.variant_training._fit_classifier", recording)
+    monkeypatch.setattr("ssga_bench.experiment.pseudo_graphs", lambda chunk: chunks.append(len(chunk.pseudo)) or build(chunk))
+    monkeypatch.setattr("ssga_bench.experiment.PSEUDO_CHUNK", 2)
+    exp = experiment(stand_in_registry)
+    run_experiment(exp, dataset, tmp_path)
+
+    plan = training_plan(dataset, exp.config.training, Views(dataset, Timings()))
+    fitting = fitting_pseudo_views(plan.cells, plan.pseudo)
+    # The pseudo-views the descriptors were fitted on are built where they were rendered; the rest, 2 per task.
+    assert 0 < len(fitting) < len(plan.pseudo)
+    assert sum(chunks) == len(plan.pseudo) - len(fitting) and max(chunks) == 2
+    for rv in exp.variants:
+        graphs, labels, groups = seen["variants", rv.label.replace(" (", "_").rstrip(")")]
+        whole, whole_labels = training_graphs(rv.bind(), plan.cells, plan.pseudo)
+        assert labels == whole_labels
+        assert len(graphs) == len(whole) == len(groups)
+        for got, want in zip(graphs, whole, strict=True):
+            np.testing.assert_array_equal(got.features, want.features)
+            np.testing.assert_array_equal(got.edges, want.edges)
 
 
 def test_the_oracle_renders_the_truth_with_an_exact_point_map():

@@ -1,9 +1,9 @@
 """Where independent work runs: one small interface over three executors.
 
 The benchmark's independent work (render a chunk of poses, parse and describe a chunk of
-views, train and score one variant) is written as *tasks*: plain module-level functions
-of one picklable job that return a picklable result (:mod:`ssga_bench.tasks`,
-:func:`ssga_bench.experiment.train_variant`, :func:`~ssga_bench.experiment.score_chunk`). An :class:`Executor` maps a task over jobs
+views, train a variant, score a chunk of views) is written as *tasks*: plain module-level
+functions of one picklable job that return a picklable result (:mod:`ssga_bench.tasks`,
+:mod:`ssga_bench.variant_training`, :func:`ssga_bench.scoring.score_chunk`). An :class:`Executor` maps a task over jobs
 and yields the results in job order::
 
     with open_executor(ExecutionConfig(executor="processes")) as executor:

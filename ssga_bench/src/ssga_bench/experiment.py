@@ -8,8 +8,11 @@ For each variant:
    (:func:`ssga_core.pipeline.training_graphs`) fits the descriptor and builds the
    graphs as the variant's order says, synthesizing or not. The runner never branches
    on the order and never calls a stage itself.
-2. **Train** the variant's classifier, the GCN or graph matching (one task per variant,
-   :func:`train_variant`), then
+2. **Train** the variant's classifier, the GCN or graph matching. The work is cut so that
+   every worker has some: the descriptors are fitted and the real graphs built one task
+   per variant (:func:`prepare_variant`), the pseudo-views' graphs in chunks, each chunk
+   through every variant (:func:`pseudo_graphs`), the classifiers one task per variant
+   (:func:`finish_variant`). Then
    **score** every test and validation view (the query path,
    :func:`ssga_core.pipeline.build_graph`) in chunks, each chunk through every trained
    variant (:func:`score_chunk`).
@@ -59,8 +62,22 @@ from ssga_bench.run_report import write_report
 from ssga_bench.scoring import SCORE_CHUNK, ChunkScores, ScoreJob, dataset_identity, score_chunk
 from ssga_bench.tasks import chunks
 from ssga_bench.timings import Timings
-from ssga_bench.training_plan import Views, training_plan
-from ssga_bench.variant_training import SCORE_FILES, Trained, VariantJob, VariantResult, finished_variant, train_variant
+from ssga_bench.training_plan import TrainingPlan, Views, training_plan
+from ssga_bench.variant_training import (
+    PSEUDO_CHUNK,
+    SCORE_FILES,
+    FinishJob,
+    FittedVariant,
+    Prepared,
+    PseudoChunk,
+    Trained,
+    VariantJob,
+    VariantResult,
+    finish_variant,
+    finished_variant,
+    prepare_variant,
+    pseudo_graphs,
+)
 from ssga_bench.workspace import Workspace
 from ssga_core.config import ResolvedStage, ResolvedVariant
 from ssga_core.errors import SsgaError
@@ -239,8 +256,9 @@ def run_experiment(
     """Train, score, fuse and evaluate every variant of ``experiment`` on ``dataset``.
 
     Real views are parsed and described first, once for every variant, in batches on the
-    executor's workers; then every variant (and oracle row) trains and scores as one
-    task. Results are the same whatever the executor and the number of workers.
+    executor's workers; then the variants (and oracle rows) train (their pseudo-views'
+    graphs in chunks) and score. Results are the same whatever the executor and the
+    number of workers.
 
     Args:
         progress: called with ``(phase, done, total)`` as each phase advances.
@@ -295,20 +313,8 @@ def run_experiment(
             keep(job, finished)
         else:
             todo.append(job)
-    trained: list[tuple[VariantJob, Trained]] = []
     with timings.wall_phase("variants: training graphs, train"):
-        ran = executor.map(train_variant, todo, describe=VariantJob.what, progress=(lambda d, n: progress("train the variants", d, n)) if progress else None)
-        for job, outcome in zip(todo, ran):
-            timings.add(outcome.timings)
-            if outcome.trained is None:
-                # A row whose checkpoint is not there is reported as such; the others still run.
-                if job.oracle is None:
-                    not_run[job.variant.label] = outcome.not_run
-                    warn(f"{job.variant.label}: not run: {outcome.not_run.removeprefix('no weights: ')}")
-                continue
-            trained.append((job, outcome.trained))
-            if variant_progress:
-                variant_progress(f"{job.what()} trained")
+        trained = _train_variants(todo, plan, root, cache_folder, executor, timings, not_run, progress, variant_progress)
     with timings.wall_phase("variants: score the query views"):
         scored = score_queries([t for _, t in trained], dataset, out, cache, executor, timings, progress)
     for (job, _), result in zip(trained, scored):
@@ -322,6 +328,59 @@ def run_experiment(
     write_json(out / "timings.json", timings.to_json())
     write_run_page(out)
     return report, timings
+
+
+def _train_variants(
+    todo: Sequence[VariantJob],
+    plan: TrainingPlan,
+    root: str,
+    cache_folder: str,
+    executor: Executor,
+    timings: Timings,
+    not_run: dict[str, str],
+    progress: Progress | None,
+    variant_progress: Callable[[str], None] | None,
+) -> list[tuple[VariantJob, Trained]]:
+    """Train the variants in three maps: their descriptors fitted (a task per variant), the
+    pseudo-views' graphs (a task per :data:`PSEUDO_CHUNK` pseudo-views, through every variant), their
+    classifiers (a task per variant). A variant without its checkpoint goes into ``not_run``."""
+
+    def bar(phase: str) -> Callable[[int, int], None] | None:
+        return (lambda d, n: progress(phase, d, n)) if progress else None
+
+    trained: dict[int, Trained] = {}
+    prepared: dict[int, Prepared] = {}
+    ran = executor.map(prepare_variant, todo, describe=VariantJob.what, progress=bar("fit the variants' descriptors"))
+    for n, (job, outcome) in enumerate(zip(todo, ran)):
+        timings.add(outcome.timings)
+        if outcome.trained is not None:
+            trained[n] = outcome.trained
+            if variant_progress:
+                variant_progress(f"{job.what()} trained")
+        elif outcome.prepared is not None:
+            prepared[n] = outcome.prepared
+        elif job.oracle is None:
+            # A row whose checkpoint is not there is reported as such; the others still run.
+            not_run[job.variant.label] = outcome.not_run
+            warn(f"{job.variant.label}: not run: {outcome.not_run.removeprefix('no weights: ')}")
+
+    synthesizing = [n for n, p in prepared.items() if p.job.variant.variant.synthesizes]
+    built = {n: dict(prepared[n].fitting) for n in synthesizing}
+    rest = [i for i in range(len(plan.pseudo)) if i not in built.get(synthesizing[0], {})] if synthesizing else []
+    fitted = tuple(FittedVariant(prepared[n].job.variant, prepared[n].job.folder, prepared[n].key, prepared[n].job.oracle) for n in synthesizing)
+    jobs = [PseudoChunk(root, cache_folder, fitted, tuple((i, plan.pseudo[i]) for i in part)) for part in chunks(rest, PSEUDO_CHUNK)]
+    for job, out in zip(jobs, executor.map(pseudo_graphs, jobs, describe=PseudoChunk.what, progress=bar("training graphs"))):
+        timings.add(out.timings)
+        for n, graphs in zip(synthesizing, out.graphs, strict=True):
+            built[n].update(zip((i for i, _ in job.pseudo), graphs, strict=True))
+
+    finish = {n: FinishJob(p, [built[n][i] for i in range(len(plan.pseudo))] if n in built else []) for n, p in prepared.items()}
+    for n, outcome in zip(finish, executor.map(finish_variant, list(finish.values()), describe=FinishJob.what, progress=bar("train the variants"))):
+        timings.add(outcome.timings)
+        trained[n] = outcome.trained
+        if variant_progress:
+            variant_progress(f"{todo[n].what()} trained")
+    return [(todo[n], trained[n]) for n in sorted(trained)]
 
 
 def _renderable(experiment: Experiment) -> bool:

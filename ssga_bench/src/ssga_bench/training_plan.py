@@ -65,6 +65,17 @@ class TrainingPlan:
         return np.concatenate([np.arange(real_graphs), pseudo]).astype(np.int64)
 
 
+def training_cells(dataset: Dataset, views: Views) -> list[CellTraining]:
+    """Each cell's real view (the ``train`` split, in its order) with the classes it stands for."""
+    rank_of_cell = {cell: rank for rank, cell in enumerate(dataset.plan.cells)}
+    orientations = dataset.plan.config.orientations
+    cells = []
+    for s in dataset.split("train"):
+        rank = rank_of_cell[s.cell]
+        cells.append(CellTraining(views(s, keep=True), s.place, range(rank * orientations, (rank + 1) * orientations)))
+    return cells
+
+
 def training_plan(dataset: Dataset, config: TrainingConfig, views: Views) -> TrainingPlan:
     """Each cell's real view, and the pose and source views of every class's pseudo-views, seeded.
 
@@ -81,10 +92,7 @@ def training_plan(dataset: Dataset, config: TrainingConfig, views: Views) -> Tra
     train = dataset.split("train")
     rank_of_cell = {cell: rank for rank, cell in enumerate(dataset.plan.cells)}
     orientations = dataset.plan.config.orientations
-    cells = []
-    for s in train:
-        rank = rank_of_cell[s.cell]
-        cells.append(CellTraining(views(s, keep=True), s.place, range(rank * orientations, (rank + 1) * orientations)))
+    cells = training_cells(dataset, views)
     index_of_rank = {rank_of_cell[s.cell]: i for i, s in enumerate(train)}
     protocol = Protocol(dataset.floor_plan, dataset.camera, dataset.plan.config)
 

@@ -1,6 +1,9 @@
-"""One variant's training, as the task a worker runs (:func:`train_variant`): its training
-graphs, its descriptor fitted, its classifier (the GCN or graph matching) trained, all left
-in its folder under a key of everything they depend on, so a rerun finds a finished
+"""One variant's training, as the tasks workers run: its descriptor fitted and its real
+graphs built (:func:`prepare_variant`, one task per variant), the graphs of its
+pseudo-views (:func:`pseudo_graphs`, in chunks of pseudo-views, each chunk through every
+prepared variant, so that a machine with more cores than variants keeps them busy), then
+its classifier, the GCN or graph matching (:func:`finish_variant`). All of it is left in the
+variant's folder under a key of everything it depends on, so a rerun finds a finished
 variant (:func:`finished_variant`) or a trained one (:class:`Trained`) and does not train
 it again."""
 
@@ -26,12 +29,18 @@ from ssga_bench.io import atomic_write_bytes, load_npy, load_npz, npz_bytes, rea
 from ssga_bench.matching import GraphMatcher
 from ssga_bench.oracle import TrueRender
 from ssga_bench.timings import Timings, instrument
-from ssga_bench.training_plan import TrainingPlan, Views
+from ssga_bench.training_plan import TrainingPlan, Views, training_cells
 from ssga_core.config import ResolvedStage, ResolvedVariant
 from ssga_core.data import SceneGraph
 from ssga_core.errors import MissingWeightsError, PluginError, SsgaError
-from ssga_core.pipeline import Progress, training_graphs
-from ssga_core.stages import Descriptor, Synthesizer
+from ssga_core.pipeline import (
+    BoundVariant,
+    PseudoView,
+    fit_training_descriptor,
+    pseudo_training_graph,
+    real_training_graphs,
+)
+from ssga_core.stages import Descriptor
 
 
 @dataclass(frozen=True)
@@ -90,52 +99,6 @@ def variant_key(rv: ResolvedVariant, training: TrainingConfig, dataset: Dataset,
         "plan": hashlib.blake2b((dataset.root / "plan.json").read_bytes(), digest_size=8).hexdigest(),
     }
     return hashlib.blake2b(json.dumps(spec, sort_keys=True).encode(), digest_size=10).hexdigest()
-
-
-def train_variant_in(
-    rv: ResolvedVariant,
-    dataset: Dataset,
-    training: TrainingConfig,
-    plan: TrainingPlan,
-    folder: Path,
-    cache: FeatureCache,
-    views: Views,
-    timings: Timings,
-    progress: Progress | None = None,
-    *,
-    synthesizer: Synthesizer | None = None,
-) -> Trained:
-    """Build one variant's training graphs, fit its descriptor, train its GCN, and leave them in
-    ``folder`` (resuming: a variant trained before with the same key is not trained again).
-
-    Args:
-        synthesizer: replaces the variant's own (the oracle's true renders).
-    """
-    extra = synthesizer.name if synthesizer is not None else ""
-    key = variant_key(rv, training, dataset, extra=extra)
-    trained = _trained(rv, folder, key)
-    if trained is not None:
-        return trained
-    # Scores of an earlier training (another key) must not pass for this one's.
-    for file in SCORE_FILES.values():
-        (folder / file).unlink(missing_ok=True)
-
-    bound = rv.bind()
-    if synthesizer is not None:
-        bound = dataclasses.replace(bound, synthesizer=synthesizer, label=f"{bound.label} on {synthesizer.name}s")
-    instrument(bound, timings)
-    graphs, labels = training_graphs(
-        bound, plan.cells, plan.pseudo, real_for_every_class=training.real_for_every_class, memo=cache, progress=progress
-    )
-    synthesizes = bound.synthesizer is not None
-    groups = plan.groups(len(graphs) - (len(plan.pseudo) if synthesizes else 0), synthesizes)
-    with timings.phase("train"):
-        fitted = _fit_classifier(graphs, labels, groups, dataset.num_classes, training, folder)
-    atomic_write_bytes(folder / "descriptor.npz", npz_bytes(fitted_state(bound.descriptor)))
-    atomic_write_bytes(folder / "nearest.npz", npz_bytes({"features": whole_image_features(graphs), "labels": np.asarray(labels, np.int64)}))
-    record = {"key": key, "label": bound.label, "graphs": len(graphs), "classifier": training.classifier, **fitted}
-    write_json(folder / "training.json", record)  # last: the folder is a trained variant once it is there
-    return Trained(rv, str(folder), key, record)
 
 
 def _fit_classifier(
@@ -227,7 +190,7 @@ def _finished(folder: Path, key: str, shapes: dict[str, tuple[int, int]]) -> Var
 
 @dataclass(frozen=True)
 class VariantJob:
-    """One variant to train, as a task (:func:`train_variant`) ships it to a worker.
+    """One variant to train, as the per-variant tasks (:func:`prepare_variant`, :func:`finish_variant`) ship it to a worker.
 
     Attributes:
         oracle: the workspace source, to train on its true renders at the same poses
@@ -248,26 +211,184 @@ class VariantJob:
 
 @dataclass(frozen=True)
 class VariantOutcome:
-    """What :func:`train_variant` sends back: the trained variant, or why it could not run, and its timings."""
+    """What :func:`finish_variant` sends back: the trained variant, and its timings."""
+
+    trained: Trained
+    timings: Timings
+
+
+@dataclass(frozen=True)
+class Prepared:
+    """A variant with its descriptor fitted (its state in ``descriptor.npz``) and its real
+    graphs built; left to do: its pseudo-views' graphs (:func:`pseudo_graphs`) and its
+    classifier (:func:`finish_variant`).
+
+    Attributes:
+        graphs, labels: the real graphs and their classes
+            (:func:`~ssga_core.pipeline.real_training_graphs`).
+        fitting: the graphs of the pseudo-views the descriptor was fitted on, by index into
+            the plan's pseudo-views (built where they were rendered, so none is rendered twice).
+    """
+
+    job: VariantJob
+    key: str
+    label: str
+    graphs: list[SceneGraph]
+    labels: list[int]
+    fitting: dict[int, SceneGraph]
+
+
+@dataclass(frozen=True)
+class PrepareOutcome:
+    """What :func:`prepare_variant` sends back: the variant trained before, or prepared, or
+    why it could not run; and its timings."""
 
     trained: Trained | None
+    prepared: Prepared | None
     not_run: str
     timings: Timings
 
 
-def train_variant(job: VariantJob) -> VariantOutcome:
-    """Train one variant (resuming: :func:`train_variant_in`); a missing checkpoint is an outcome, not a failure."""
-    from ssga_bench.tasks import opened_dataset, opened_workspace
+def prepare_variant(job: VariantJob) -> PrepareOutcome:
+    """Fit the variant's descriptor and build its real graphs (a variant trained before with
+    the same key is only read back); a missing checkpoint is an outcome, not a failure."""
+    from ssga_bench.tasks import opened_dataset
 
     timings = Timings()
     dataset = opened_dataset(job.dataset)
-    # One cache per process: the variants a worker runs share what they computed of the
-    # same synthetic views (SD, SPD and DSP render the same pseudo-views).
+    folder = Path(job.folder)
+    key = variant_key(job.variant, job.training, dataset, extra=TrueRender.name if job.oracle is not None else "")
+    trained = _trained(job.variant, folder, key)
+    if trained is not None:
+        return PrepareOutcome(trained, None, "", timings)
+    # Scores of an earlier training (another key) must not pass for this one's.
+    for file in SCORE_FILES.values():
+        (folder / file).unlink(missing_ok=True)
     cache = memo(("feature cache", job.cache), lambda: FeatureCache(job.cache))
-    synthesizer = TrueRender(opened_workspace(job.oracle)) if job.oracle is not None else None
-    views = Views(dataset, timings)
+    plan = job.plan
     try:
-        trained = train_variant_in(job.variant, dataset, job.training, job.plan, Path(job.folder), cache, views, timings, synthesizer=synthesizer)
+        # Every stage runs here (a learned one may load its checkpoint only when first used),
+        # so a missing checkpoint shows here, not in the chunks.
+        bound = _bind(job.variant, job.oracle)
+        instrument(bound, timings)
+        first = fit_training_descriptor(bound, plan.cells, plan.pseudo)
+        graphs, labels = real_training_graphs(bound, plan.cells, real_for_every_class=job.training.real_for_every_class, memo=cache)
+        fitting = {i: pseudo_training_graph(bound, plan.cells, plan.pseudo[i], cache, synthesis=syn) for i, syn in first.items()}
     except MissingWeightsError as exc:
-        return VariantOutcome(None, f"no weights: {exc}", timings)
-    return VariantOutcome(trained, "", timings)
+        return PrepareOutcome(None, None, f"no weights: {exc}", timings)
+    atomic_write_bytes(folder / "descriptor.npz", npz_bytes(fitted_state(bound.descriptor)))
+    return PrepareOutcome(None, Prepared(job, key, bound.label, graphs, labels, fitting), "", timings)
+
+
+def _bind(variant: ResolvedVariant, oracle: ResolvedStage | None) -> BoundVariant:
+    """The variant's stages; the oracle's true renders in place of its synthesizer."""
+    from ssga_bench.tasks import opened_workspace
+
+    bound = variant.bind()
+    if oracle is not None:
+        synthesizer = TrueRender(opened_workspace(oracle))
+        bound = dataclasses.replace(bound, synthesizer=synthesizer, label=f"{bound.label} on {synthesizer.name}s")
+    return bound
+
+
+PSEUDO_CHUNK = 16
+"""Pseudo-views per training-graph task (:func:`pseudo_graphs`). Each goes through every
+variant, so a chunk is a few seconds of work: small enough for every worker to get its
+share of a run's 1,000-odd pseudo-views. A fixed cut: the graphs do not depend on it."""
+
+
+@dataclass(frozen=True)
+class FittedVariant:
+    """A prepared variant as a chunk task opens it: its stages, with the descriptor its
+    ``descriptor.npz`` holds (``key``: that file's training, so a worker opens it once)."""
+
+    variant: ResolvedVariant
+    folder: str
+    key: str
+    oracle: ResolvedStage | None
+
+
+@dataclass(frozen=True)
+class PseudoChunk:
+    """A chunk of the plan's pseudo-views (with their indices), to build under every variant."""
+
+    dataset: str
+    cache: str
+    variants: tuple[FittedVariant, ...]
+    pseudo: tuple[tuple[int, PseudoView], ...]
+
+    def what(self) -> str:
+        first, last = self.pseudo[0][0], self.pseudo[-1][0]
+        return f"training graphs of pseudo-views {first}-{last}" if last != first else f"training graph of pseudo-view {first}"
+
+
+@dataclass(frozen=True)
+class ChunkGraphs:
+    """What :func:`pseudo_graphs` sends back: per variant, the chunk's graphs in its order; its timings."""
+
+    graphs: tuple[tuple[SceneGraph, ...], ...]
+    timings: Timings
+
+
+def pseudo_graphs(chunk: PseudoChunk) -> ChunkGraphs:
+    """The training graphs of a chunk of pseudo-views under every variant.
+
+    The variants are opened once per worker. Each pseudo-view goes through every variant
+    in turn, so that what they compute of the same synthetic view (SD, SPD and DSP render
+    the same one) is computed once (the feature cache).
+    """
+    from ssga_bench.tasks import opened_dataset
+
+    dataset = opened_dataset(chunk.dataset)
+    cache = memo(("feature cache", chunk.cache), lambda: FeatureCache(chunk.cache))
+    # Keyed by the dataset object too (the entry keeps it alive): a dataset rebuilt in place is another.
+    _, cells = memo(("training cells", chunk.dataset, id(dataset)), lambda: (dataset, training_cells(dataset, Views(dataset, Timings()))))
+
+    def open_all() -> tuple[Timings, list[BoundVariant]]:
+        timings = Timings()
+        bounds = []
+        for v in chunk.variants:
+            bound = _bind(v.variant, v.oracle)
+            bound.descriptor.load_state_dict(load_npz(Path(v.folder) / "descriptor.npz"))
+            instrument(bound, timings)
+            bounds.append(bound)
+        return timings, bounds
+
+    timings, bounds = memo(("fitted variants", tuple((v.folder, v.key) for v in chunk.variants)), open_all)
+    timings.clear()
+    graphs: list[list[SceneGraph]] = [[] for _ in bounds]
+    for _, p in chunk.pseudo:
+        for bound, built in zip(bounds, graphs):
+            built.append(pseudo_training_graph(bound, cells, p, cache))
+    return ChunkGraphs(tuple(tuple(g) for g in graphs), timings.take())
+
+
+@dataclass(frozen=True)
+class FinishJob:
+    """A prepared variant and the graphs of all its pseudo-views, in the plan's order (none without S)."""
+
+    prepared: Prepared
+    pseudo: list[SceneGraph]
+
+    def what(self) -> str:
+        return self.prepared.job.what()
+
+
+def finish_variant(job: FinishJob) -> VariantOutcome:
+    """Fit the variant's classifier on all its training graphs and leave it in its folder."""
+    from ssga_bench.tasks import opened_dataset
+
+    timings = Timings()
+    prepared, variant_job = job.prepared, job.prepared.job
+    dataset = opened_dataset(variant_job.dataset)
+    folder = Path(variant_job.folder)
+    plan = variant_job.plan
+    graphs = [*prepared.graphs, *job.pseudo]
+    labels = [*prepared.labels, *(p.place for p in plan.pseudo)] if job.pseudo else list(prepared.labels)
+    groups = plan.groups(len(prepared.graphs), bool(job.pseudo))
+    with timings.phase("train"):
+        fitted = _fit_classifier(graphs, labels, groups, dataset.num_classes, variant_job.training, folder)
+    atomic_write_bytes(folder / "nearest.npz", npz_bytes({"features": whole_image_features(graphs), "labels": np.asarray(labels, np.int64)}))
+    record = {"key": prepared.key, "label": prepared.label, "graphs": len(graphs), "classifier": variant_job.training.classifier, **fitted}
+    write_json(folder / "training.json", record)  # last: the folder is a trained variant once it is there
+    return VariantOutcome(Trained(variant_job.variant, str(folder), prepared.key, record), timings)

@@ -204,6 +204,11 @@ def training_graphs(
 ) -> tuple[list[SceneGraph], list[int]]:
     """Fit ``bound``'s descriptor and build every training graph with its class (see the module docstring).
 
+    The three steps are also public, so that a caller can run the pseudo-views' graphs
+    elsewhere (in chunks, on other workers) once the descriptor is fitted: this function is
+    :func:`fit_training_descriptor`, :func:`real_training_graphs`, then
+    :func:`pseudo_training_graph` for each pseudo-view.
+
     Args:
         cells: the real views.
         pseudo: the pseudo-views to synthesize (used only by a variant with S).
@@ -215,40 +220,80 @@ def training_graphs(
         the graphs and their classes: every cell's real graph first (repeated for each
         class it stands for), then one graph per pseudo-view, in ``pseudo``'s order.
     """
-    synthesizer = bound.synthesizer
-    # The descriptor learns from the views its graphs are built from: each real view
-    # and, with S, the first pseudo-view of every class without a real view. Those
-    # syntheses are kept for the graphs, so none is rendered twice.
+    first = fit_training_descriptor(bound, cells, pseudo)
+    graphs, labels = real_training_graphs(bound, cells, real_for_every_class=real_for_every_class, memo=memo)
+    if bound.synthesizer is None:
+        return graphs, labels
+    for n, p in enumerate(pseudo):
+        graphs.append(pseudo_training_graph(bound, cells, p, memo, synthesis=first.pop(n, None)))
+        labels.append(p.place)
+        if progress:
+            progress("training graphs", n + 1, len(pseudo))
+    return graphs, labels
+
+
+def fitting_pseudo_views(cells: Sequence[CellTraining], pseudo: Sequence[PseudoView]) -> list[int]:
+    """The pseudo-views a variant with S fits its descriptor on, by index into ``pseudo``:
+    the first of every class that has no real view."""
+    real_classes = {cell.real_class for cell in cells}
+    seen: set[int] = set()
+    chosen = []
+    for i, p in enumerate(pseudo):
+        if p.place not in real_classes and p.place not in seen:
+            seen.add(p.place)
+            chosen.append(i)
+    return chosen
+
+
+def fit_training_descriptor(bound: BoundVariant, cells: Sequence[CellTraining], pseudo: Sequence[PseudoView]) -> dict[int, list[Synthesis]]:
+    """Fit ``bound``'s descriptor on the views its training graphs are built from: each real
+    view and, with S, the pseudo-views of :func:`fitting_pseudo_views`.
+
+    Returns:
+        those pseudo-views' syntheses by index into ``pseudo``, to pass to
+        :func:`pseudo_training_graph`, so that none is rendered twice (empty without S).
+    """
     first: dict[int, list[Synthesis]] = {}
     fit_views = [cell.real for cell in cells]
     fit_labels = [cell.real_class for cell in cells]
-    if synthesizer is not None:
-        real_classes = {cell.real_class for cell in cells}
-        for i, p in enumerate(pseudo):
-            if p.place not in real_classes and p.place not in fit_labels:
-                first[i] = synthesizer.synthesize_from([cells[c].real for c in p.sources], p.pose)
-                fit_views.append(first[i][0].view)
-                fit_labels.append(p.place)
+    if bound.synthesizer is not None:
+        for i in fitting_pseudo_views(cells, pseudo):
+            p = pseudo[i]
+            first[i] = bound.synthesizer.synthesize_from([cells[c].real for c in p.sources], p.pose)
+            fit_views.append(first[i][0].view)
+            fit_labels.append(p.place)
     bound.descriptor.fit(fit_views, fit_labels)
+    return first
 
+
+def real_training_graphs(
+    bound: BoundVariant, cells: Sequence[CellTraining], *, real_for_every_class: bool = True, memo: FeatureMemo | None = None
+) -> tuple[list[SceneGraph], list[int]]:
+    """Every cell's real graph, repeated for each class it stands for, with those classes
+    (the descriptor fitted: :func:`fit_training_descriptor`)."""
     graphs: list[SceneGraph] = []
     labels: list[int] = []
     for cell in cells:
         real = build_graph(bound, cell.real, memo=memo)
         stands_for = [cell.real_class]
-        if synthesizer is None and real_for_every_class:
+        if bound.synthesizer is None and real_for_every_class:
             stands_for = sorted({cell.real_class, *cell.classes})
         graphs.extend([real] * len(stands_for))
         labels.extend(stands_for)
-    if synthesizer is None:
-        return graphs, labels
-    for n, p in enumerate(pseudo):
-        sources = [cells[c].real for c in p.sources]
-        graphs.append(build_graph(bound, sources, p.pose, memo, synthesis=first.pop(n, None)))
-        labels.append(p.place)
-        if progress:
-            progress("training graphs", n + 1, len(pseudo))
     return graphs, labels
+
+
+def pseudo_training_graph(
+    bound: BoundVariant,
+    cells: Sequence[CellTraining],
+    pseudo: PseudoView,
+    memo: FeatureMemo | None = None,
+    *,
+    synthesis: Sequence[Synthesis] | None = None,
+) -> SceneGraph:
+    """The training graph of one pseudo-view, of class ``pseudo.place`` (the descriptor fitted:
+    :func:`fit_training_descriptor`; ``synthesis``: what it rendered of this pseudo-view)."""
+    return build_graph(bound, [cells[c].real for c in pseudo.sources], pseudo.pose, memo, synthesis=synthesis)
 
 
 def _join(states: Sequence[_State]) -> _State:
