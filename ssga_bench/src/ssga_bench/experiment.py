@@ -81,7 +81,7 @@ from ssga_bench.variant_training import (
 from ssga_bench.workspace import Workspace
 from ssga_core.config import ResolvedStage, ResolvedVariant
 from ssga_core.errors import SsgaError
-from ssga_core.pipeline import Progress
+from ssga_core.pipeline import Progress, fitting_pseudo_views
 from ssga_core.stages import LocalDescriptor
 
 
@@ -365,8 +365,9 @@ def _train_variants(
             warn(f"{job.variant.label}: not run: {outcome.not_run.removeprefix('no weights: ')}")
 
     synthesizing = [n for n, p in prepared.items() if p.job.variant.variant.synthesizes]
-    built = {n: dict(prepared[n].fitting) for n in synthesizing}
-    rest = [i for i in range(len(plan.pseudo)) if i not in built.get(synthesizing[0], {})] if synthesizing else []
+    built = {n: dict(prepared[n].fitting) for n in synthesizing}  # the pseudo-views each descriptor was fitted on
+    fitting = set(fitting_pseudo_views(plan.cells, plan.pseudo))
+    rest = [i for i in range(len(plan.pseudo)) if i not in fitting] if synthesizing else []
     fitted = tuple(FittedVariant(prepared[n].job.variant, prepared[n].job.folder, prepared[n].key, prepared[n].job.oracle) for n in synthesizing)
     jobs = [PseudoChunk(root, cache_folder, fitted, tuple((i, plan.pseudo[i]) for i in part)) for part in chunks(rest, PSEUDO_CHUNK)]
     for job, out in zip(jobs, executor.map(pseudo_graphs, jobs, describe=PseudoChunk.what, progress=bar("training graphs"))):
