@@ -189,7 +189,19 @@ def test_variants_without_s_train_every_class_of_a_cell_on_its_real_graph(tmp_pa
 def test_the_pseudo_views_graphs_built_in_chunks_are_those_the_pipeline_builds_whole(tmp_path, dataset, stand_in_registry, monkeypatch):
     from ssga_bench import variant_training
     from ssga_core.pipeline import fitting_pseudo_views, training_graphs
+    from ssga_core.testing.stages import PatchColour
 
+    # A descriptor that learns in fit (the mean colour of its training views, taken off every
+    # node): the chunks must describe with the state the variant's descriptor was fitted to.
+    pool = PatchColour._pool
+
+    def fit(self, views, labels=None):
+        self.centre = np.mean([v.rgb.mean(axis=(0, 1)) / 255 for v in views], axis=0).astype(np.float32)
+
+    monkeypatch.setattr(PatchColour, "fit", fit)
+    monkeypatch.setattr(PatchColour, "state_dict", lambda self: {"centre": self.centre})
+    monkeypatch.setattr(PatchColour, "load_state_dict", lambda self, state: setattr(self, "centre", state["centre"]))
+    monkeypatch.setattr(PatchColour, "_pool", lambda self, features, members: pool(self, features, members) - self.centre)
     seen, chunks = {}, []
     fit, build = variant_training._fit_classifier, variant_training.pseudo_graphs
 
