@@ -20,7 +20,7 @@ from ssga_bench.execution import memo
 from ssga_bench.io import load_npz
 from ssga_bench.tasks import span
 from ssga_bench.timings import Timings, instrument
-from ssga_bench.variant_training import Trained, load_classifier, whole_image_features
+from ssga_bench.variant_training import Trained, fitted_stages, load_classifier, whole_image_features
 from ssga_core.data import Data, SceneGraph
 from ssga_core.pipeline import BoundVariant, build_graph
 
@@ -95,9 +95,8 @@ class _Scorer:
 
 
 def _open_trained(trained: Trained, timings: Timings) -> _Scorer:
-    bound = trained.variant.bind()
     folder = Path(trained.folder)
-    bound.descriptor.load_state_dict(load_npz(folder / "descriptor.npz"))
+    bound = fitted_stages(trained.variant, folder)  # the query path has no S: the oracle's synthesizer is not needed
     nearest = load_npz(folder / "nearest.npz")
     instrument(bound, timings)
     model = load_classifier(folder, trained.training.get("classifier", "gcn"))

@@ -291,6 +291,14 @@ def _bind(variant: ResolvedVariant, oracle: ResolvedStage | None) -> BoundVarian
     return bound
 
 
+def fitted_stages(variant: ResolvedVariant, folder: str | Path, oracle: ResolvedStage | None = None) -> BoundVariant:
+    """The variant's stages in another process, its descriptor as fitted: the state
+    :func:`prepare_variant` left in ``folder / "descriptor.npz"``."""
+    bound = _bind(variant, oracle)
+    bound.descriptor.load_state_dict(load_npz(Path(folder) / "descriptor.npz"))
+    return bound
+
+
 PSEUDO_CHUNK = 16
 """Pseudo-views per training-graph task (:func:`pseudo_graphs`). Each goes through every
 variant, so a chunk is a few seconds of work: small enough for every worker to get its
@@ -349,8 +357,7 @@ def pseudo_graphs(chunk: PseudoChunk) -> ChunkGraphs:
         timings = Timings()
         bounds = []
         for v in chunk.variants:
-            bound = _bind(v.variant, v.oracle)
-            bound.descriptor.load_state_dict(load_npz(Path(v.folder) / "descriptor.npz"))
+            bound = fitted_stages(v.variant, v.folder, v.oracle)
             instrument(bound, timings)
             bounds.append(bound)
         return timings, bounds
