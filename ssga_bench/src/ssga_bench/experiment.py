@@ -364,18 +364,18 @@ def _train_variants(
             not_run[job.variant.label] = outcome.not_run
             warn(f"{job.variant.label}: not run: {outcome.not_run.removeprefix('no weights: ')}")
 
-    synthesizing = [n for n, p in prepared.items() if p.job.variant.variant.synthesizes]
+    synthesizing = [n for n in prepared if todo[n].variant.variant.synthesizes]
     built = {n: dict(prepared[n].fitting) for n in synthesizing}  # the pseudo-views each descriptor was fitted on
     fitting = set(fitting_pseudo_views(plan.cells, plan.pseudo))
     rest = [i for i in range(len(plan.pseudo)) if i not in fitting] if synthesizing else []
-    fitted = tuple(FittedVariant(prepared[n].job.variant, prepared[n].job.folder, prepared[n].key, prepared[n].job.oracle) for n in synthesizing)
+    fitted = tuple(FittedVariant(todo[n].variant, todo[n].folder, prepared[n].key, todo[n].oracle) for n in synthesizing)
     jobs = [PseudoChunk(root, cache_folder, fitted, tuple((i, plan.pseudo[i]) for i in part)) for part in chunks(rest, PSEUDO_CHUNK)]
     for job, out in zip(jobs, executor.map(pseudo_graphs, jobs, describe=PseudoChunk.what, progress=bar("training graphs"))):
         timings.add(out.timings)
         for n, graphs in zip(synthesizing, out.graphs, strict=True):
             built[n].update(zip((i for i, _ in job.pseudo), graphs, strict=True))
 
-    finish = {n: FinishJob(p, [built[n][i] for i in range(len(plan.pseudo))] if n in built else []) for n, p in prepared.items()}
+    finish = {n: FinishJob(todo[n], p, [built[n][i] for i in range(len(plan.pseudo))] if n in built else []) for n, p in prepared.items()}
     for n, outcome in zip(finish, executor.map(finish_variant, list(finish.values()), describe=FinishJob.what, progress=bar("train the variants"))):
         timings.add(outcome.timings)
         trained[n] = outcome.trained

@@ -223,6 +223,9 @@ class Prepared:
     graphs built; left to do: its pseudo-views' graphs (:func:`pseudo_graphs`) and its
     classifier (:func:`finish_variant`).
 
+    It does not carry its :class:`VariantJob` back: the driver has it, and the job holds the
+    training plan with every real view.
+
     Attributes:
         graphs, labels: the real graphs and their classes
             (:func:`~ssga_core.pipeline.real_training_graphs`).
@@ -230,7 +233,6 @@ class Prepared:
             the plan's pseudo-views (built where they were rendered, so none is rendered twice).
     """
 
-    job: VariantJob
     key: str
     label: str
     graphs: list[SceneGraph]
@@ -277,7 +279,7 @@ def prepare_variant(job: VariantJob) -> PrepareOutcome:
     except MissingWeightsError as exc:
         return PrepareOutcome(None, None, f"no weights: {exc}", timings)
     atomic_write_bytes(folder / "descriptor.npz", npz_bytes(fitted_state(bound.descriptor)))
-    return PrepareOutcome(None, Prepared(job, key, bound.label, graphs, labels, fitting), "", timings)
+    return PrepareOutcome(None, Prepared(key, bound.label, graphs, labels, fitting), "", timings)
 
 
 def _bind(variant: ResolvedVariant, oracle: ResolvedStage | None) -> BoundVariant:
@@ -375,11 +377,12 @@ def pseudo_graphs(chunk: PseudoChunk) -> ChunkGraphs:
 class FinishJob:
     """A prepared variant and the graphs of all its pseudo-views, in the plan's order (none without S)."""
 
+    job: VariantJob
     prepared: Prepared
     pseudo: list[SceneGraph]
 
     def what(self) -> str:
-        return self.prepared.job.what()
+        return self.job.what()
 
 
 def finish_variant(job: FinishJob) -> VariantOutcome:
@@ -387,7 +390,7 @@ def finish_variant(job: FinishJob) -> VariantOutcome:
     from ssga_bench.tasks import opened_dataset
 
     timings = Timings()
-    prepared, variant_job = job.prepared, job.prepared.job
+    prepared, variant_job = job.prepared, job.job
     dataset = opened_dataset(variant_job.dataset)
     folder = Path(variant_job.folder)
     plan = variant_job.plan
