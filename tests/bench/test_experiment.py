@@ -349,6 +349,46 @@ def test_a_learned_ensemble_row_keeps_the_papers_fusion_beside_it_over_all_and_o
     assert report.rows[chosen].key == "Ensemble (RRF) chosen on validation"  # one row across seeds, whatever each chose
 
 
+def test_forward_selection_by_level_keeps_the_member_that_holds_up_on_the_few_hard_views():
+    """Ten easy (L1) validation views and two hard (L3) ones, the truth class 0 of three: 'easy' ranks
+    it first on the easy views and last on the hard ones, 'hard' second and first."""
+    from ssga_fuser_rrf.plugin import ReciprocalRankFusion
+
+    from ssga_bench.fusion import choose_members
+
+    levels = np.array([1] * 10 + [3] * 2)
+    easy = np.array([[0.9, 0.05, 0.05]] * 10 + [[0.0, 0.9, 0.1]] * 2)
+    hard = np.array([[0.4, 0.5, 0.1]] * 10 + [[0.9, 0.05, 0.05]] * 2)
+    scores, truth, rrf = {"easy": easy, "hard": hard}, np.zeros(12, int), ReciprocalRankFusion()
+    # Over all views 'easy' leads (MRR 0.89 against 0.58) and 'hard' still adds to it (0.92: both hard views move up to second).
+    assert choose_members(scores, truth, rrf) == ["easy", "hard"]
+    # Each level counting equally, 'hard' leads (0.75 against 0.67) and 'easy' adds nothing (the levels' mean stays 0.75).
+    assert choose_members(scores, truth, rrf, levels) == ["hard"]
+    # One level is no level at all: the plain choice.
+    assert choose_members(scores, truth, rrf, np.ones(12, int)) == ["easy", "hard"]
+
+
+def test_the_ensemble_chosen_with_each_level_equal_says_so_and_is_what_forward_selection_by_level_chose(tmp_path, stand_in_registry):
+    from ssga_fuser_rrf.plugin import ReciprocalRankFusion
+
+    from ssga_bench.evaluation import truth_ranks
+    from ssga_bench.fusion import choose_members
+
+    validated, exp = _with_validation_views(tmp_path, stand_in_registry, {"ensemble": {"members": "validation", "selection": "levels"}})
+    report, _ = run_experiment(exp, validated, tmp_path / "out")
+    folders = {"PC-ST (PDS)": "PC-ST_PDS", "PC-ST (PD)": "PC-ST_PD", "PC (SD)": "PC_SD"}
+    val = {label: np.load(tmp_path / "out" / "variants" / f / "val_scores.npy") for label, f in folders.items()}
+    test = {label: np.load(tmp_path / "out" / "variants" / f / "scores.npy") for label, f in folders.items()}
+    vals = validated.split("val")
+    assert len({s.level for s in vals}) > 1  # else the choice by level could not differ from the plain one
+    members = choose_members(val, np.array([s.place for s in vals]), ReciprocalRankFusion(), np.array([s.level or 0 for s in vals]))
+    assert report.ensemble == f"Ensemble (RRF) of {len(members)} chosen on validation, each level equal: " + ", ".join(members)
+    truth = np.array([s.place for s in validated.split("test")])
+    fused = ReciprocalRankFusion().fuse(np.stack([test[m] for m in members]))
+    np.testing.assert_array_equal(report.true_ranks[report.ensemble], truth_ranks(fused, truth))
+    assert report.rows[report.ensemble].key == "Ensemble (RRF) chosen on validation, each level equal"
+
+
 @pytest.mark.parametrize(
     ("config", "problem"),
     [

@@ -160,6 +160,12 @@ class EnsembleConfig(Strict):
         description="Variants fused: 'all' (the paper), or those chosen on the validation views by forward selection "
         "(needs protocol.val_per_class > 0; the other is reported beside it).",
     )
+    selection: Literal["views", "levels"] = Field(
+        default="views",
+        description="What forward selection of the members maximises on the validation views: 'views', their MRR (each "
+        "level weighs by its share of the views, L1 about three quarters); 'levels', the mean of the difficulty levels' "
+        "MRRs, each level counting as one column of Table 1 does (docs/experiments.md, 'Other ways of choosing the members').",
+    )
     oracle: list[str] = Field(
         default_factory=lambda: ["SD"],
         max_length=16,

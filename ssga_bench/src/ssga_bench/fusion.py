@@ -21,15 +21,19 @@ from ssga_core.errors import SsgaError
 from ssga_core.stages import Fuser
 
 
-def choose_members(val_scores: Mapping[str, np.ndarray], truth: np.ndarray, fuser: Fuser) -> list[str]:
+def choose_members(val_scores: Mapping[str, np.ndarray], truth: np.ndarray, fuser: Fuser, levels: np.ndarray | None = None) -> list[str]:
     """Variants to fuse, chosen on the validation views: forward selection by fused MRR.
 
     Starts from the best single variant and adds, one at a time, the variant that raises
-    the fused MRR most, while one does.
+    the fused MRR most, while one does. With ``levels`` (each validation view's difficulty
+    level), the MRR is the mean of the levels' own: a member strong only on the easy views,
+    which are most of them, no longer outweighs one that holds up on the hard ones.
     """
+    groups = [np.ones(len(truth), bool)] if levels is None else [levels == level for level in np.unique(levels)]
+
     def mrr(labels: Sequence[str]) -> float:
-        fused = fuser.fuse(np.stack([val_scores[label] for label in labels]))
-        return float(np.mean(1.0 / truth_ranks(fused, truth)))
+        reciprocal = 1.0 / truth_ranks(fuser.fuse(np.stack([val_scores[label] for label in labels])), truth)
+        return float(np.mean([reciprocal[group].mean() for group in groups]))
 
     chosen = [max(val_scores, key=lambda label: mrr([label]))]
     best = mrr(chosen)
@@ -75,6 +79,8 @@ def fuse_variants(
     config = experiment.config
     vals = dataset.split("val")
     val_truth = np.array([s.place for s in vals])
+    by_level = config.ensemble.selection == "levels"
+    val_levels = np.array([s.level or 0 for s in vals]) if by_level else None  # a captured view without a level: a group of its own
     fuser = experiment.fuser.create()
     assert isinstance(fuser, Fuser)
     labels = [rv.label for rv in experiment.variants if rv.label in results]
@@ -95,9 +101,10 @@ def fuse_variants(
 
     def over_chosen(rule: Fuser) -> tuple[str, np.ndarray]:
         """``rule`` over the members forward selection picks for it on the validation views: its row."""
-        members = choose_members(val_scores, val_truth, rule)
-        label = f"Ensemble ({rule.tag()}) of {len(members)} chosen on validation: " + ", ".join(members)
-        series[label] = f"Ensemble ({rule.tag()}) chosen on validation"
+        members = choose_members(val_scores, val_truth, rule, val_levels)
+        how = "chosen on validation, each level equal" if by_level else "chosen on validation"
+        label = f"Ensemble ({rule.tag()}) of {len(members)} {how}: " + ", ".join(members)
+        series[label] = f"Ensemble ({rule.tag()}) {how}"
         return label, fused(rule, members)
 
     if len(vals):
