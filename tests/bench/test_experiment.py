@@ -291,6 +291,12 @@ def _with_validation_views(tmp_path, registry, fusion):
     return validated, validate_experiment({**config, **fusion}, registry)
 
 
+def _stored_scores(out):
+    """The validation and test scores each of :func:`_with_validation_views`'s variants stored under ``out``."""
+    folders = {"PC-ST (PDS)": "PC-ST_PDS", "PC-ST (PD)": "PC-ST_PD", "PC (SD)": "PC_SD"}
+    return tuple({label: np.load(out / "variants" / f / name) for label, f in folders.items()} for name in ("val_scores.npy", "scores.npy"))
+
+
 def test_a_fusion_learned_on_validation_is_reported_beside_the_papers(tmp_path, stand_in_registry):
     from ssga_fuser_stacking.plugin import Stacking
 
@@ -336,9 +342,7 @@ def test_a_learned_ensemble_row_keeps_the_papers_fusion_beside_it_over_all_and_o
     validated, exp = _with_validation_views(tmp_path, stand_in_registry, {"fuser": {"name": "stacking"}, "ensemble": {"also": [{"name": "rrf"}]}})
     report, _ = run_experiment(exp, validated, tmp_path / "out")
     assert report.ensemble == "Ensemble (STK)"
-    folders = {"PC-ST (PDS)": "PC-ST_PDS", "PC-ST (PD)": "PC-ST_PD", "PC (SD)": "PC_SD"}
-    val = {label: np.load(tmp_path / "out" / "variants" / f / "val_scores.npy") for label, f in folders.items()}
-    test = {label: np.load(tmp_path / "out" / "variants" / f / "scores.npy") for label, f in folders.items()}
+    val, test = _stored_scores(tmp_path / "out")
     rrf = ReciprocalRankFusion()
     members = choose_members(val, np.array([s.place for s in validated.split("val")]), rrf)
     chosen = f"Ensemble (RRF) of {len(members)} chosen on validation: " + ", ".join(members)
@@ -376,9 +380,7 @@ def test_the_ensemble_chosen_with_each_level_equal_says_so_and_is_what_forward_s
 
     validated, exp = _with_validation_views(tmp_path, stand_in_registry, {"ensemble": {"members": "validation", "selection": "levels"}})
     report, _ = run_experiment(exp, validated, tmp_path / "out")
-    folders = {"PC-ST (PDS)": "PC-ST_PDS", "PC-ST (PD)": "PC-ST_PD", "PC (SD)": "PC_SD"}
-    val = {label: np.load(tmp_path / "out" / "variants" / f / "val_scores.npy") for label, f in folders.items()}
-    test = {label: np.load(tmp_path / "out" / "variants" / f / "scores.npy") for label, f in folders.items()}
+    val, test = _stored_scores(tmp_path / "out")
     vals = validated.split("val")
     assert len({s.level for s in vals}) > 1  # else the choice by level could not differ from the plain one
     members = choose_members(val, np.array([s.place for s in vals]), ReciprocalRankFusion(), np.array([s.level or 0 for s in vals]))
