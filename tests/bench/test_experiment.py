@@ -276,6 +276,22 @@ def test_graph_matching_classifies_without_training_a_network(tmp_path, dataset,
     assert again.markdown() == report.markdown()
 
 
+def test_parts_judged_where_drawn_keep_each_pseudo_views_drawn_grid_in_the_matcher(tmp_path, dataset, stand_in_registry):
+    exp = experiment(stand_in_registry, classifier="graph-match", match_whole=0.0, match_standardise=True, match_drawn=True)
+    run_experiment(exp, dataset, tmp_path)
+    folder = tmp_path / "variants" / "PC-ST_PDS"
+    assert json.loads((folder / "training.json").read_text())["match_drawn"] is True
+    state = np.load(folder / "matcher.npz")
+    drawn, real = state["drawn"], len(dataset.split("train"))
+    assert drawn.shape == (len(state["labels"]), 16, 16)
+    assert (drawn[:real] == 1).all()  # the real views: all of them seen
+    assert drawn[real:].min() < 1  # the stand-in synthesizer's sideways moves leave holes
+    plain = tmp_path / "plain"
+    run_experiment(experiment(stand_in_registry, classifier="graph-match", match_whole=0.0, match_standardise=True), dataset, plain)
+    assert "drawn" not in np.load(plain / "variants" / "PC-ST_PDS" / "matcher.npz")
+    assert not np.array_equal(np.load(plain / "variants" / "PC-ST_PDS" / "scores.npy"), np.load(folder / "scores.npy"))
+
+
 def _with_validation_views(tmp_path, registry, fusion):
     """A wall workspace with validation views, and three graph-matching variants fused as ``fusion`` says."""
     validated = build_dataset(

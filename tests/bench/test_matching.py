@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -56,9 +58,20 @@ def z(x):
     return (x - x.mean()) / x.std()
 
 
-def naive_standardised(query: SceneGraph, train: list[SceneGraph], whole_weight: float, layout_weight: float) -> np.ndarray:
+def drawn_at(train: SceneGraph, box) -> float:
+    """The share of ``train``'s image drawn in the block of its grid where ``box``'s centre stands (a real view: 1)."""
+    if train.drawn is None:
+        return 1.0
+    u, v = centre(box)
+    side = len(train.drawn)
+    return float(train.drawn[min(int(v * side), side - 1), min(int(u * side), side - 1)])
+
+
+def naive_standardised(query: SceneGraph, train: list[SceneGraph], whole_weight: float, layout_weight: float, judged_where_drawn: bool = False) -> np.ndarray:
     """Standardised parts, one pair at a time: each query part's best twins and the training parts' mean best twins
-    standardised over the training graphs (with parts), then mixed as the plain rule mixes them."""
+    standardised over the training graphs (with parts), then mixed as the plain rule mixes them; judged where drawn,
+    each query part's standardised twin in a graph counts by the share of that graph drawn at the part's centre, and
+    each training part's best twin in the query by the share of its own graph drawn at its centre."""
     whole = z([unit(query.features[0]) @ unit(t.features[0]) for t in train])
     with_parts = [i for i, t in enumerate(train) if t.num_parts]
     out = whole.copy()
@@ -72,9 +85,13 @@ def naive_standardised(query: SceneGraph, train: list[SceneGraph], whole_weight:
                     [[np.exp(-np.sum((centre(a) - centre(b)) ** 2) / (2 * 0.3**2)) for b in train[i].boxes[1:]] for a in query.boxes[1:]]
                 )
             twins.append(pairs.max(axis=1))
-            means.append(pairs.max(axis=0).mean())
-        per_part = np.array(twins).T  # (query parts, graphs with parts)
-        return (np.mean([z(row) for row in per_part], axis=0) + z(means)) / 2
+            own = [drawn_at(train[i], box) if judged_where_drawn else 1.0 for box in train[i].boxes[1:]]
+            means.append(np.sum(pairs.max(axis=0) * own) / np.sum(own))
+        per_part = np.array([z(row) for row in np.array(twins).T])  # (query parts, graphs with parts), standardised
+        counts = np.ones_like(per_part)
+        if judged_where_drawn:
+            counts = np.array([[drawn_at(train[g], box) for g in with_parts] for box in query.boxes[1:]])
+        return ((counts * per_part).sum(axis=0) / counts.sum(axis=0) + z(means)) / 2
 
     parts = (1 - layout_weight) * both_ways(False) + layout_weight * both_ways(True)
     out[with_parts] = whole_weight * whole[with_parts] + (1 - whole_weight) * parts
@@ -89,6 +106,56 @@ def test_standardised_parts_are_the_rule_written_out(whole_weight, layout_weight
     for q in [graph(*rng.random((1 + k, 6))) for k in (4, 2, 0)]:
         expected = naive_standardised(q, train, whole_weight, layout_weight) if q.num_parts else z([unit(q.features[0]) @ unit(t.features[0]) for t in train])
         np.testing.assert_allclose(matcher.similarities(q), expected, rtol=1e-4, atol=1e-4)
+
+
+@pytest.mark.parametrize("layout_weight", [0.0, 0.5])
+def test_parts_judged_where_drawn_are_the_rule_written_out(layout_weight):
+    rng = np.random.default_rng(7)
+    train = [graph(*rng.random((1 + k, 6))) for k in (3, 0, 5, 1, 2, 4)]
+    # Four pseudo-views drawn in random patches of a 4 x 4 grid (some of it holes), one real view (None: all seen).
+    grids = [rng.choice([0.0, 0.25, 1.0], size=(4, 4)).astype(np.float32) for _ in range(4)] + [None]
+    grids[0][:] = 1.0  # drawn everywhere: counts as a real view does
+    train = [replace(t, drawn=d) for t, d in zip(train, [*grids[:2], None, *grids[2:]])]
+    labels = [0, 1, 1, 2, 0, 3]
+    matcher = GraphMatcher.of(train, labels, 4, 0.0, layout_weight, standardise=True, weigh_drawn=True)
+    plain = GraphMatcher.of(train, labels, 4, 0.0, layout_weight, standardise=True)
+    for q in [graph(*rng.random((1 + k, 6))) for k in (4, 2)]:
+        expected = naive_standardised(q, train, 0.0, layout_weight, judged_where_drawn=True)
+        np.testing.assert_allclose(matcher.similarities(q), expected, rtol=1e-4, atol=1e-4)
+        assert not np.allclose(matcher.similarities(q), plain.similarities(q))
+    # Drawn everywhere, judging where drawn changes nothing.
+    whole = [replace(t, drawn=np.ones((4, 4), np.float32)) for t in train]
+    q = graph(*rng.random((4, 6)))
+    np.testing.assert_allclose(
+        GraphMatcher.of(whole, labels, 4, 0.0, layout_weight, standardise=True, weigh_drawn=True).similarities(q), plain.similarities(q), rtol=1e-5
+    )
+
+
+def test_a_half_drawn_pseudo_view_is_judged_on_what_it_shows():
+    # The query turned from the real view towards its neighbouring heading: the lamp the real view saw stands on its
+    # left, a window the real view never saw on its right. The true class's pseudo-view, rendered from the real view,
+    # has the lamp in place and a hole where the window is (its hole, described, looks like nothing). The real
+    # view's class, rendered nearly whole, has a lamp and a window like them but not the same. Judged everywhere, the
+    # hole costs the true class the window; judged where drawn, the window does not count against it.
+    dims = 16
+    e = np.eye(dims)
+
+    def near(i, cosine, spare):
+        return cosine * e[i] + np.sqrt(1 - cosine**2) * e[spare]
+
+    left, right = [5, 10, 45, 40], [55, 10, 95, 40]
+    query = graph(e[0], e[1], e[2], parts_boxes=[left, right])
+    hole = e[15]
+    half_drawn = np.zeros((4, 4), np.float32)
+    half_drawn[:, :2] = 1.0  # the left half drawn
+    true_class = replace(graph(e[0], e[1], hole, parts_boxes=[left, right]), drawn=half_drawn)
+    whole_render = graph(e[0], near(1, 0.6, 3), near(2, 0.6, 4), parts_boxes=[left, right])
+    others = [graph(e[0], near(1, 0.3, 5 + k), near(2, 0.3, 9 + k), parts_boxes=[left, right]) for k in range(4)]
+    train, labels = [true_class, whole_render, *others], list(range(6))
+    everywhere = GraphMatcher.of(train, labels, 6, 0.0, standardise=True)
+    assert everywhere.predict([query]).argmax() == 1
+    where_drawn = GraphMatcher.of(train, labels, 6, 0.0, standardise=True, weigh_drawn=True)
+    assert where_drawn.predict([query]).argmax() == 0
 
 
 def test_standardised_parts_give_every_part_an_equal_say():
@@ -170,7 +237,15 @@ def test_the_saved_state_scores_the_same_and_a_broken_one_is_refused():
     again = GraphMatcher.from_state(standardised.state_dict())
     assert again.standardise
     np.testing.assert_array_equal(again.predict(query), standardised.predict(query))
+    drawn = [replace(t, drawn=np.full((2, 2), 0.5 + 0.25 * k, np.float32)) for k, t in enumerate(train)]
+    judged = GraphMatcher.of(drawn, [2, 0, 1], 3, whole_weight=0.0, layout_weight=0.5, standardise=True, weigh_drawn=True)
+    again = GraphMatcher.from_state(judged.state_dict())
+    np.testing.assert_array_equal(again.drawn, judged.drawn)
+    np.testing.assert_array_equal(again.predict(query), judged.predict(query))
+    with pytest.raises(InputError, match="drawn grids"):
+        GraphMatcher.from_state({**judged.state_dict(), "drawn": judged.drawn[:2]})
     state = matcher.state_dict()
+    assert "drawn" not in state  # not judged where drawn: nothing of it saved
     # A state saved before standardised parts existed matched without them.
     older = GraphMatcher.from_state({k: v for k, v in state.items() if k != "standardise"})
     np.testing.assert_array_equal(older.predict(query), matcher.predict(query))

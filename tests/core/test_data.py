@@ -109,6 +109,32 @@ def test_drawn_share_counts_known_depth_around_each_position_of_a_synthetic_view
     np.testing.assert_array_equal(no_depth.drawn_share(positions, side=11), np.ones(7))
 
 
+def test_drawn_blocks_are_the_share_of_each_block_a_synthetic_view_drew():
+    real = make_view(seed=0)
+    depth = real.depth.copy()
+    depth[:, 160:] = 0.0  # columns 160-255 are a hole: blocks of 64 px, the third half drawn, the fourth not at all
+    synthetic = View(rgb=real.rgb, pose=real.pose, camera=real.camera, depth=depth, synthetic=True)
+    np.testing.assert_allclose(synthetic.drawn_blocks(4), np.tile([1.0, 1.0, 0.5, 0.0], (4, 1)))
+    assert synthetic.drawn_blocks(4).dtype == np.float32
+    # Blocks need not divide the image: columns 0-84, 85-170 (75 of its 86 drawn) and 171-255.
+    np.testing.assert_allclose(synthetic.drawn_blocks(3), np.tile([1.0, 75 / 86, 0.0], (3, 1)), rtol=1e-6)
+    np.testing.assert_array_equal(real.drawn_blocks(4), np.ones((4, 4)))  # a real view: all of it seen
+    with pytest.raises(InputError, match="blocks must be positive"):
+        synthetic.drawn_blocks(0)
+
+
+def test_scene_graph_records_where_it_was_drawn_as_a_square_grid_of_shares():
+    ok = dict(boxes=np.zeros((2, 4), np.float32), features=np.zeros((2, 5), np.float32), weights=np.ones(2, np.float32), edges=np.zeros((0, 2), int))
+    assert SceneGraph(**ok).drawn is None
+    SceneGraph(**ok, drawn=np.full((4, 4), 0.5, np.float32))
+    with pytest.raises(InputError, match="SceneGraph.drawn"):
+        SceneGraph(**ok, drawn=np.ones((4, 3), np.float32))
+    with pytest.raises(InputError, match="SceneGraph.drawn"):
+        SceneGraph(**ok, drawn=np.full((2, 2), 1.5, np.float32))
+    with pytest.raises(InputError, match="SceneGraph.drawn"):
+        SceneGraph(**ok, drawn=np.ones((2, 2), np.int64))
+
+
 def test_scene_graph_validates_edges_and_needs_the_whole_image():
     ok = dict(boxes=np.zeros((3, 4), np.float32), features=np.zeros((3, 5), np.float32), weights=np.ones(3, np.float32))
     SceneGraph(**ok, edges=np.array([[0, 1], [1, 2]]))

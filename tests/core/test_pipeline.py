@@ -239,3 +239,13 @@ def test_holes_skip_describes_only_what_the_synthesizer_drew(view):
     np.testing.assert_allclose(skip_graph.features[0], every.descriptors[drawn].mean(axis=0), rtol=1e-6)
     # The hole is black: describing it darkens the whole image's feature.
     assert (skip_graph.features[0] > keep_graph.features[0]).all()
+
+
+def test_a_synthetic_views_graph_records_where_it_was_drawn(view):
+    # 0.6 m to the right: content moves 25.6 px left, so columns 230-255 of the synthetic view are a hole.
+    target = target_right(view, 0.6)
+    for order in ("SPD", "PSD", "PDS", "DSP", "SD"):
+        drawn = build_graph(bind(order), view, target).drawn
+        np.testing.assert_allclose(drawn, ShiftWarp().synthesize(view, target).view.drawn_blocks(16), err_msg=order)
+        assert drawn[:, -1].max() < 0.5 and drawn[:, :-2].min() == 1.0
+    assert build_graph(bind("PD"), view).drawn is None  # a real view: all of it seen

@@ -85,6 +85,12 @@ class TrainingConfig(Strict):
         "they are averaged, so every part has an equal say, not most of it the parts whose similarities spread widest "
         "(standardised parts).",
     )
+    match_drawn: bool = Field(
+        default=False,
+        description="classifier = 'graph-match': weigh each query part's match with a training graph by how much of that "
+        "graph's image was drawn where the part stands, so a pseudo-view with holes is judged on what it shows "
+        "(parts judged where drawn).",
+    )
     hidden: int = Field(default=256, gt=0, le=8192, description="Hidden width of the GCN.")
     layers: int = Field(default=2, ge=1, le=32, description="Graph-convolution layers.")
     dropout: float = Field(default=0.0, ge=0.0, lt=1.0, description="Dropout on the hidden node states and on the pooled state.")

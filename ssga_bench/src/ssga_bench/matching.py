@@ -22,6 +22,14 @@ training graphs. A query graph is compared with every training graph:
   widely (it matches a few places very well and the rest badly, often by an accident of
   segmentation or synthesis) outvotes the many parts whose evidence is quieter but
   agrees. Scores are then in spreads, not cosines.
+* **parts judged where drawn** (``weigh_drawn``): a pseudo-view is often half holes
+  (where no source view saw), and a query part that stands where a training graph's
+  image was not drawn can find no twin there, however right the place. Each query part's
+  vote on a training graph is weighed by the share of that graph's image drawn at the
+  part's centre (``SceneGraph.drawn``; a real view is drawn everywhere), so a pseudo-view
+  is judged on what it shows; and each training part's own vote counts by the share drawn
+  at its centre (a part cut out of a hole describes nothing seen). Without it, a nearly
+  whole render of a neighbouring class outscores the true class's half-drawn one.
 
 The similarity of two graphs is ``whole_weight`` times the first plus the rest times the
 part match (the whole image alone where either graph has no part), and a class scores the
@@ -59,6 +67,17 @@ def standardised(x: np.ndarray, axis: int) -> np.ndarray:
     return (x - x.mean(axis=axis, keepdims=True)) / np.maximum(x.std(axis=axis, keepdims=True), _NO_SPREAD)
 
 
+def drawn_grids(graphs: Sequence[SceneGraph]) -> np.ndarray:
+    """``(graphs, B, B)``: each graph's ``drawn`` grid, all ones for a real view's (all of it seen)."""
+    if not graphs:
+        return np.zeros((0, 1, 1), np.float32)
+    sides = {g.drawn.shape[0] for g in graphs if g.drawn is not None}
+    if len(sides) > 1:
+        raise InputError(f"graph matcher: the training graphs record where they were drawn on grids of different sizes {sorted(sides)}")
+    side = sides.pop() if sides else 1
+    return np.stack([g.drawn if g.drawn is not None else np.ones((side, side), np.float32) for g in graphs]).astype(np.float32)
+
+
 def _unit(x: np.ndarray) -> np.ndarray:
     return normalise_rows(np.asarray(x, np.float32), "l2")
 
@@ -92,6 +111,7 @@ class GraphMatcher:
         layout_weight: float = 0.0,
         layout_sigma: float = 0.3,
         standardise: bool = False,
+        drawn: np.ndarray | None = None,
     ) -> None:
         node_ptr, labels = np.asarray(node_ptr, np.int64), np.asarray(labels, np.int64)
         if (
@@ -109,6 +129,8 @@ class GraphMatcher:
             raise InputError(f"graph matcher: needs training graphs with classes in 0..{num_classes - 1}")
         if layout_sigma <= 0:
             raise InputError(f"graph matcher: layout_sigma must be positive, got {layout_sigma}")
+        if drawn is not None and (drawn.ndim != 3 or len(drawn) != len(labels) or drawn.shape[1] != drawn.shape[2]):
+            raise InputError(f"graph matcher: expected ({len(labels)}, B, B) drawn grids, one per training graph, got {drawn.shape}")
         self.features, self.centres = np.asarray(features, np.float32), np.asarray(centres, np.float32)
         self.node_ptr, self.labels = node_ptr, labels
         self.num_classes, self.whole_weight = num_classes, whole_weight
@@ -125,6 +147,13 @@ class GraphMatcher:
         has = self._part_counts > 0
         self._with_parts = np.flatnonzero(has)
         self._part_starts = np.concatenate([[0], np.cumsum(self._part_counts)[:-1]])[has]
+        # Parts judged where drawn: each training graph with parts' grid of drawn shares (None: not weighed).
+        self.drawn = None if drawn is None else np.asarray(drawn, np.float32)
+        self._drawn_with_parts = None if self.drawn is None else self.drawn[self._with_parts]
+        self._train_part_drawn = None
+        if self.drawn is not None:  # each training part's own graph's drawn share at the part's centre
+            owner = np.repeat(np.arange(len(labels)), counts)[is_part]
+            self._train_part_drawn = self._drawn_share(self.drawn[owner], self._part_centres, diagonal=True)
 
     @classmethod
     def of(
@@ -136,11 +165,14 @@ class GraphMatcher:
         layout_weight: float = 0.0,
         layout_sigma: float = 0.3,
         standardise: bool = False,
+        weigh_drawn: bool = False,
     ) -> GraphMatcher:
+        """The matcher of ``graphs``; ``weigh_drawn``: judge the query's parts where each graph was drawn."""
         node_ptr = np.concatenate([[0], np.cumsum([g.num_nodes for g in graphs])])
         features = _unit(np.concatenate([g.features for g in graphs])) if graphs else np.zeros((0, 1), np.float32)
         centres = np.concatenate([part_centres(g) for g in graphs]) if graphs else np.zeros((0, 2), np.float32)
-        return cls(features, centres, node_ptr, np.asarray(labels), num_classes, whole_weight, layout_weight, layout_sigma, standardise)
+        drawn = drawn_grids(graphs) if weigh_drawn else None
+        return cls(features, centres, node_ptr, np.asarray(labels), num_classes, whole_weight, layout_weight, layout_sigma, standardise, drawn)
 
     def state_dict(self) -> dict[str, np.ndarray]:
         return {
@@ -153,6 +185,7 @@ class GraphMatcher:
             "layout_weight": np.array(self.layout_weight),
             "layout_sigma": np.array(self.layout_sigma),
             "standardise": np.array(self.standardise),
+            **({} if self.drawn is None else {"drawn": self.drawn}),
         }
 
     @classmethod
@@ -167,8 +200,9 @@ class GraphMatcher:
                 float(state["whole_weight"]),
                 float(state["layout_weight"]),
                 float(state["layout_sigma"]),
-                # A state saved before standardised parts existed matched without them.
+                # A state saved before standardised parts (or parts judged where drawn) existed matched without them.
                 bool(state.get("standardise", False)),
+                state.get("drawn"),
             )
         except KeyError as exc:
             raise InputError(f"graph matcher: saved state without {exc}") from None
@@ -182,15 +216,33 @@ class GraphMatcher:
         squared = -0.5 * scale * (centres**2).sum(axis=1, keepdims=True)
         return np.concatenate([centres * scale, squared, np.ones_like(squared)], axis=1)
 
-    def _both_ways(self, pairs: np.ndarray) -> np.ndarray:
+    @staticmethod
+    def _drawn_share(grids: np.ndarray, centres: np.ndarray, diagonal: bool = False) -> np.ndarray:
+        """The share drawn in the block of each grid (``(G, B, B)``) where each centre (``(N, 2)``, in image widths and
+        heights) falls: ``(G, N)``, or with ``diagonal`` (G == N) the ``(N,)`` of each grid at its own centre."""
+        blocks = grids.shape[1]
+        row, col = (np.clip((centres[:, k] * blocks).astype(np.intp), 0, blocks - 1) for k in (1, 0))
+        return grids[np.arange(len(grids)), row, col] if diagonal else grids[:, row, col]
+
+    def _both_ways(self, pairs: np.ndarray, query_weights: np.ndarray | None = None) -> np.ndarray:
         """``(training graphs with parts,)``: from ``(query parts, every training part)`` similarities, each query part's
         best twin in each training graph and each training part's in the query, both means averaged; with
-        standardised parts, each query part's twins and the training graphs' means are standardised over the graphs first."""
+        standardised parts, each query part's twins and the training graphs' means are standardised over the graphs first.
+        ``query_weights`` (query parts, training graphs with parts), with parts judged where drawn: how much each query
+        part counts in each graph's mean; each training part then counts by its own graph's drawn share at it."""
         best_twins = np.maximum.reduceat(pairs, self._part_starts, axis=1)  # (query parts, training graphs with parts)
-        train_to_query = np.add.reduceat(pairs.max(axis=0), self._part_starts) / self._part_counts[self._with_parts]
+        if self._train_part_drawn is None:
+            train_to_query = np.add.reduceat(pairs.max(axis=0), self._part_starts) / self._part_counts[self._with_parts]
+        else:
+            drawn = self._train_part_drawn
+            train_to_query = np.add.reduceat(pairs.max(axis=0) * drawn, self._part_starts) / np.maximum(np.add.reduceat(drawn, self._part_starts), 1e-6)
         if self.standardise:
-            return (standardised(best_twins, axis=1).mean(axis=0) + standardised(train_to_query, axis=0)) / 2
-        return (best_twins.mean(axis=0) + train_to_query) / 2
+            best_twins, train_to_query = standardised(best_twins, axis=1), standardised(train_to_query, axis=0)
+        if query_weights is None:
+            query_to_train = best_twins.mean(axis=0)
+        else:  # a graph drawn nowhere under the query's parts: its query side counts as average (0 standardised)
+            query_to_train = (query_weights * best_twins).sum(axis=0) / np.maximum(query_weights.sum(axis=0), 1e-6)
+        return (query_to_train + train_to_query) / 2
 
     def similarities(self, graph: SceneGraph) -> np.ndarray:
         """``(training graphs,)``: how well ``graph`` matches each training graph."""
@@ -202,10 +254,12 @@ class GraphMatcher:
         if not len(parts) or not len(self._with_parts):
             return similarity
         pairs = parts @ self._parts.T  # (query parts, every training part)
-        part_match = self._both_ways(pairs)
+        centres = part_centres(graph)[1:]
+        weights = None if self._drawn_with_parts is None else self._drawn_share(self._drawn_with_parts, centres).T
+        part_match = self._both_ways(pairs, weights)
         if self.layout_weight > 0:
-            nearness = np.exp(self._in_place(part_centres(graph)[1:]) @ self._train_in_place)
-            part_match = (1 - self.layout_weight) * part_match + self.layout_weight * self._both_ways(pairs * nearness)
+            nearness = np.exp(self._in_place(centres) @ self._train_in_place)
+            part_match = (1 - self.layout_weight) * part_match + self.layout_weight * self._both_ways(pairs * nearness, weights)
         matched = similarity.copy()
         matched[self._with_parts] = self.whole_weight * similarity[self._with_parts] + (1 - self.whole_weight) * part_match
         return matched

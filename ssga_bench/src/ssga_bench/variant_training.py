@@ -111,6 +111,7 @@ def _fit_classifier(
             "match_layout": training.match_layout,
             "layout_sigma": training.layout_sigma,
             "match_standardise": training.match_standardise,
+            "match_drawn": training.match_drawn,
         }
         matcher = GraphMatcher.of(
             graphs,
@@ -120,6 +121,7 @@ def _fit_classifier(
             training.match_layout,
             training.layout_sigma,
             training.match_standardise,
+            training.match_drawn,
         )
         atomic_write_bytes(folder / CLASSIFIER_FILES["graph-match"], npz_bytes(matcher.state_dict()))
         return rule

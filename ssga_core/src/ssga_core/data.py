@@ -125,6 +125,24 @@ class View:
         inside = (col >= 0) & (col < w) & (row >= 0) & (row < h)
         return np.where(inside & (area > 0), count / np.maximum(area, 1), 0.0).astype(np.float32)
 
+    def drawn_blocks(self, blocks: int) -> np.ndarray:
+        """``(blocks, blocks)`` float32: for a synthetic view, the share of each block of an even
+        ``blocks x blocks`` grid over the image where its synthesizer drew a surface (known depth);
+        1 everywhere for a real view, or a synthetic one without depth (as :meth:`drawn_share`)."""
+        if blocks < 1:
+            raise InputError(f"View.drawn_blocks: blocks must be positive, got {blocks}")
+        if not self.synthetic or self.depth is None:
+            return np.ones((blocks, blocks), dtype=np.float32)
+        h, w = self.camera.shape
+        rows = np.linspace(0, h, blocks + 1).round().astype(np.intp)
+        cols = np.linspace(0, w, blocks + 1).round().astype(np.intp)
+        drawn = np.zeros((h + 1, w + 1), dtype=np.float64)  # a summed-area table, as drawn_share's
+        drawn[1:, 1:] = self.valid_depth().cumsum(0).cumsum(1)
+        count = drawn[rows[1:, None], cols[None, 1:]] - drawn[rows[:-1, None], cols[None, 1:]]
+        count -= drawn[rows[1:, None], cols[None, :-1]] - drawn[rows[:-1, None], cols[None, :-1]]
+        area = np.diff(rows)[:, None] * np.diff(cols)[None, :]
+        return (count / np.maximum(area, 1)).astype(np.float32)
+
 
 def boxes_from_labels(labels: np.ndarray, count: int) -> np.ndarray:
     """``(count, 4)`` bounding boxes ``[u0, v0, u1, v1]`` (inclusive pixel centres) of each label.
@@ -355,6 +373,11 @@ class SceneGraph:
         weights: ``(N,)`` float32; the whole image 1, each of the K parts ``1/K``
             (paper §3.2). The GCN multiplies each node's feature by its weight.
         edges: ``(E, 2)`` int64 undirected edges ``i < j``.
+        drawn: for the graph of a synthetic view, ``(B, B)`` float32: the share of each
+            block of a ``B x B`` grid over its image that the synthesizer drew
+            (:meth:`View.drawn_blocks`); None for a real view, all of which was seen.
+            A pseudo-view is often half holes: a matcher can then judge a query's parts
+            only against what the pseudo-view shows where they stand.
     """
 
     WHOLE_IMAGE: ClassVar[int] = 0
@@ -363,6 +386,7 @@ class SceneGraph:
     features: np.ndarray
     weights: np.ndarray
     edges: np.ndarray
+    drawn: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         n = len(self.boxes) if isinstance(self.boxes, np.ndarray) else -1
@@ -376,6 +400,11 @@ class SceneGraph:
         _check_array("SceneGraph.edges", self.edges, (e, 2), (np.integer,))
         if e and (self.edges.min() < 0 or self.edges.max() >= n or np.any(self.edges[:, 0] >= self.edges[:, 1])):
             raise InputError(f"SceneGraph.edges: expected pairs i < j of node indices below {n}")
+        if self.drawn is not None:
+            side = self.drawn.shape[0] if isinstance(self.drawn, np.ndarray) and self.drawn.ndim == 2 else -1
+            _check_array("SceneGraph.drawn", self.drawn, (side, side), (np.floating,))
+            if side < 1 or not np.all((self.drawn >= 0) & (self.drawn <= 1)):
+                raise InputError("SceneGraph.drawn: expected a square grid of shares in [0, 1]")
 
     @property
     def num_nodes(self) -> int:

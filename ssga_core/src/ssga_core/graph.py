@@ -42,12 +42,19 @@ def node_weights(num_parts: int) -> np.ndarray:
     return weights
 
 
-def assemble(camera: Camera, part_boxes: np.ndarray, features: np.ndarray) -> SceneGraph:
-    """The scene graph of a whole-image node (features row 0) and parts (rows 1..K)."""
+DRAWN_BLOCKS = 16
+"""The side of the grid a synthetic view's graph records where it was drawn on (``SceneGraph.drawn``):
+16 x 16 blocks, 16 px at 256 x 256, finer than a SLICO part (about 40 px across)."""
+
+
+def assemble(camera: Camera, part_boxes: np.ndarray, features: np.ndarray, drawn: np.ndarray | None = None) -> SceneGraph:
+    """The scene graph of a whole-image node (features row 0) and parts (rows 1..K); ``drawn``:
+    where a synthetic view was drawn (:meth:`~ssga_core.View.drawn_blocks`)."""
     boxes = np.concatenate([whole_image_box(camera)[None], np.asarray(part_boxes, dtype=np.float32).reshape(-1, 4)])
     return SceneGraph(
         boxes=boxes,
         features=np.asarray(features, dtype=np.float32),
         weights=node_weights(len(boxes) - 1),
         edges=proximity_edges(boxes, camera.width),
+        drawn=drawn,
     )

@@ -24,7 +24,9 @@ has been parsed and described of it so far.
 At the end the graph is assembled: node 0 is the whole image (all local features, or
 the region descriptor's image feature), nodes 1..K the surviving parts; a part with no
 local feature in it is dropped (it has nothing to describe it). Weights are 1 for the
-whole image and 1/K per part; edges join boxes that overlap or are within 20 px.
+whole image and 1/K per part; edges join boxes that overlap or are within 20 px. The
+graph of a synthetic view also records where on its image the synthesizer drew
+(``SceneGraph.drawn``).
 
 Real images (queries, and the one real training image per cell) take the query path:
 the order without S. So ``PDS``, ``PSD`` and ``SPD`` all parse-and-describe a query
@@ -57,7 +59,7 @@ import numpy as np
 from ssga_core.data import Data, LocalFeatures, Regions, SceneGraph, Synthesis, View
 from ssga_core.errors import InputError
 from ssga_core.geometry import Pose
-from ssga_core.graph import assemble
+from ssga_core.graph import DRAWN_BLOCKS, assemble
 from ssga_core.kinds import PIPELINE_KIND_NAMES
 from ssga_core.stages import Descriptor, LocalDescriptor, Parser, RegionDescriptor, Synthesizer
 from ssga_core.variants import Variant, check_binding
@@ -397,7 +399,8 @@ class _State:
             assert self.region_features is not None
             features = self.region_features
         boxes = regions.boxes if regions is not None else np.zeros((0, 4), np.float32)
-        return assemble(camera, boxes, features)
+        drawn = self.view.drawn_blocks(DRAWN_BLOCKS) if self.view.synthetic else None
+        return assemble(camera, boxes, features, drawn)
 
 
 def carry_regions(regions: Regions, syn: Synthesis) -> tuple[np.ndarray, Regions]:
