@@ -113,8 +113,7 @@ class View:
         if not self.synthetic or self.depth is None:
             return np.ones(len(positions), dtype=np.float32)
         h, w = self.camera.shape
-        drawn = np.zeros((h + 1, w + 1), dtype=np.float64)  # a summed-area table, one row and column of zeros first
-        drawn[1:, 1:] = self.valid_depth().cumsum(0).cumsum(1)
+        drawn = self._drawn_table()
         half = max(int(side), 1) // 2
         col = np.rint(np.nan_to_num(positions[:, 0], nan=-1e9)).clip(-1, w).astype(np.intp)
         row = np.rint(np.nan_to_num(positions[:, 1], nan=-1e9)).clip(-1, h).astype(np.intp)
@@ -124,6 +123,13 @@ class View:
         count = drawn[r1, c1] - drawn[r0, c1] - drawn[r1, c0] + drawn[r0, c0]
         inside = (col >= 0) & (col < w) & (row >= 0) & (row < h)
         return np.where(inside & (area > 0), count / np.maximum(area, 1), 0.0).astype(np.float32)
+
+    def _drawn_table(self) -> np.ndarray:
+        """``(H + 1, W + 1)``: a summed-area table of where depth is known, one row and column of zeros first."""
+        h, w = self.camera.shape
+        drawn = np.zeros((h + 1, w + 1), dtype=np.float64)
+        drawn[1:, 1:] = self.valid_depth().cumsum(0).cumsum(1)
+        return drawn
 
     def drawn_blocks(self, blocks: int) -> np.ndarray:
         """``(blocks, blocks)`` float32: for a synthetic view, the share of each block of an even
@@ -136,8 +142,7 @@ class View:
         h, w = self.camera.shape
         rows = np.linspace(0, h, blocks + 1).round().astype(np.intp)
         cols = np.linspace(0, w, blocks + 1).round().astype(np.intp)
-        drawn = np.zeros((h + 1, w + 1), dtype=np.float64)  # a summed-area table, as drawn_share's
-        drawn[1:, 1:] = self.valid_depth().cumsum(0).cumsum(1)
+        drawn = self._drawn_table()
         count = drawn[rows[1:, None], cols[None, 1:]] - drawn[rows[:-1, None], cols[None, 1:]]
         count -= drawn[rows[1:, None], cols[None, :-1]] - drawn[rows[:-1, None], cols[None, :-1]]
         area = np.diff(rows)[:, None] * np.diff(cols)[None, :]
