@@ -88,8 +88,8 @@ class TrainingConfig(Strict):
     match_drawn: bool = Field(
         default=False,
         description="classifier = 'graph-match': weigh each query part's match with a training graph by how much of that "
-        "graph's image was drawn where the part stands, so a pseudo-view with holes is judged on what it shows "
-        "(parts judged where drawn).",
+        "graph's image was drawn where the part stands, and each training part's by how much was drawn under it, so a "
+        "pseudo-view with holes is judged on what it shows (parts judged where drawn).",
     )
     hidden: int = Field(default=256, gt=0, le=8192, description="Hidden width of the GCN.")
     layers: int = Field(default=2, ge=1, le=32, description="Graph-convolution layers.")

@@ -44,7 +44,7 @@ def node_weights(num_parts: int) -> np.ndarray:
 
 DRAWN_BLOCKS = 16
 """The side of the grid a synthetic view's graph records where it was drawn on (``SceneGraph.drawn``):
-16 x 16 blocks, 16 px at 256 x 256, finer than a SLICO part (about 40 px across)."""
+16 x 16 blocks, 16 px at 256 x 256, finer than a SLICO part (64 of them in 256 x 256: 32 px across)."""
 
 
 def assemble(camera: Camera, part_boxes: np.ndarray, features: np.ndarray, drawn: np.ndarray | None = None) -> SceneGraph:
