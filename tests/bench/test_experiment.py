@@ -277,11 +277,13 @@ def test_graph_matching_classifies_without_training_a_network(tmp_path, dataset,
 
 
 def test_parts_judged_where_drawn_keep_each_pseudo_views_drawn_grid_in_the_matcher(tmp_path, dataset, stand_in_registry):
-    exp = experiment(stand_in_registry, classifier="graph-match", match_whole=0.0, match_standardise=True, match_drawn=True)
+    exp = experiment(stand_in_registry, classifier="graph-match", match_whole=0.0, match_standardise=True, match_drawn=True, match_drawn_prior=2.0)
     run_experiment(exp, dataset, tmp_path)
     folder = tmp_path / "variants" / "PC-ST_PDS"
-    assert json.loads((folder / "training.json").read_text())["match_drawn"] is True
+    record = json.loads((folder / "training.json").read_text())
+    assert record["match_drawn"] is True and record["match_drawn_prior"] == 2.0
     state = np.load(folder / "matcher.npz")
+    assert float(state["drawn_prior"]) == 2.0
     drawn, real = state["drawn"], len(dataset.split("train"))
     assert drawn.shape == (len(state["labels"]), 16, 16)
     assert (drawn[:real] == 1).all()  # the real views: all of them seen

@@ -67,11 +67,14 @@ def drawn_at(train: SceneGraph, box) -> float:
     return float(train.drawn[min(int(v * side), side - 1), min(int(u * side), side - 1)])
 
 
-def naive_standardised(query: SceneGraph, train: list[SceneGraph], whole_weight: float, layout_weight: float, judged_where_drawn: bool = False) -> np.ndarray:
+def naive_standardised(
+    query: SceneGraph, train: list[SceneGraph], whole_weight: float, layout_weight: float, judged_where_drawn: bool = False, prior: float = 0.0
+) -> np.ndarray:
     """Standardised parts, one pair at a time: each query part's best twins and the training parts' mean best twins
     standardised over the training graphs (with parts), then mixed as the plain rule mixes them; judged where drawn,
-    each query part's standardised twin in a graph counts by the share of that graph drawn at the part's centre, and
-    each training part's best twin in the query by the share of its own graph drawn at its centre."""
+    each query part's standardised twin in a graph counts by the share of that graph drawn at the part's centre (plus
+    ``prior`` parts' worth of the graph's plain mean of them), and each training part's best twin in the query by the
+    share of its own graph drawn at its centre."""
     whole = z([unit(query.features[0]) @ unit(t.features[0]) for t in train])
     with_parts = [i for i, t in enumerate(train) if t.num_parts]
     out = whole.copy()
@@ -91,7 +94,8 @@ def naive_standardised(query: SceneGraph, train: list[SceneGraph], whole_weight:
         counts = np.ones_like(per_part)
         if judged_where_drawn:
             counts = np.array([[drawn_at(train[g], box) for g in with_parts] for box in query.boxes[1:]])
-        return ((counts * per_part).sum(axis=0) / counts.sum(axis=0) + z(means)) / 2
+        query_side = ((counts * per_part).sum(axis=0) + prior * per_part.mean(axis=0)) / (counts.sum(axis=0) + prior)
+        return (query_side + z(means)) / 2
 
     parts = (1 - layout_weight) * both_ways(False) + layout_weight * both_ways(True)
     out[with_parts] = whole_weight * whole[with_parts] + (1 - whole_weight) * parts
@@ -108,8 +112,8 @@ def test_standardised_parts_are_the_rule_written_out(whole_weight, layout_weight
         np.testing.assert_allclose(matcher.similarities(q), expected, rtol=1e-4, atol=1e-4)
 
 
-@pytest.mark.parametrize("layout_weight", [0.0, 0.5])
-def test_parts_judged_where_drawn_are_the_rule_written_out(layout_weight):
+@pytest.mark.parametrize(("layout_weight", "prior"), [(0.0, 0.0), (0.5, 0.0), (0.5, 2.0)])
+def test_parts_judged_where_drawn_are_the_rule_written_out(layout_weight, prior):
     rng = np.random.default_rng(7)
     train = [graph(*rng.random((1 + k, 6))) for k in (3, 0, 5, 1, 2, 4)]
     # Four pseudo-views drawn in random patches of a 4 x 4 grid (some of it holes), one real view (None: all seen).
@@ -117,17 +121,19 @@ def test_parts_judged_where_drawn_are_the_rule_written_out(layout_weight):
     grids[0][:] = 1.0  # drawn everywhere: counts as a real view does
     train = [replace(t, drawn=d) for t, d in zip(train, [*grids[:2], None, *grids[2:]])]
     labels = [0, 1, 1, 2, 0, 3]
-    matcher = GraphMatcher.of(train, labels, 4, 0.0, layout_weight, standardise=True, weigh_drawn=True)
+    matcher = GraphMatcher.of(train, labels, 4, 0.0, layout_weight, standardise=True, weigh_drawn=True, drawn_prior=prior)
     plain = GraphMatcher.of(train, labels, 4, 0.0, layout_weight, standardise=True)
     for q in [graph(*rng.random((1 + k, 6))) for k in (4, 2)]:
-        expected = naive_standardised(q, train, 0.0, layout_weight, judged_where_drawn=True)
+        expected = naive_standardised(q, train, 0.0, layout_weight, judged_where_drawn=True, prior=prior)
         np.testing.assert_allclose(matcher.similarities(q), expected, rtol=1e-4, atol=1e-4)
         assert not np.allclose(matcher.similarities(q), plain.similarities(q))
     # Drawn everywhere, judging where drawn changes nothing.
     whole = [replace(t, drawn=np.ones((4, 4), np.float32)) for t in train]
     q = graph(*rng.random((4, 6)))
     np.testing.assert_allclose(
-        GraphMatcher.of(whole, labels, 4, 0.0, layout_weight, standardise=True, weigh_drawn=True).similarities(q), plain.similarities(q), rtol=1e-5
+        GraphMatcher.of(whole, labels, 4, 0.0, layout_weight, standardise=True, weigh_drawn=True, drawn_prior=prior).similarities(q),
+        plain.similarities(q),
+        rtol=1e-5,
     )
 
 
@@ -156,6 +162,36 @@ def test_a_half_drawn_pseudo_view_is_judged_on_what_it_shows():
     assert everywhere.predict([query]).argmax() == 1
     where_drawn = GraphMatcher.of(train, labels, 6, 0.0, standardise=True, weigh_drawn=True)
     assert where_drawn.predict([query]).argmax() == 0
+
+
+def test_a_prior_keeps_a_pseudo_view_drawn_under_one_part_from_winning_on_it_alone():
+    # Far from its source views a pseudo-view is drawn in a sliver: under one of the query's four parts, where it matches
+    # the query exactly; the rest is holes. Judged where drawn alone, that one part is its whole query side, and it
+    # outscores the true class's render, which matches every part well but none exactly. A prior of one part's worth of
+    # its plain mean (holes and all) weighs in what the sliver does not show.
+    dims = 24
+    e = np.eye(dims)
+
+    def near(i, cosine, spare):
+        return cosine * e[i] + np.sqrt(1 - cosine**2) * e[spare]
+
+    boxes = [[5, 10, 20, 40], [30, 10, 45, 40], [55, 10, 70, 40], [80, 10, 95, 40]]
+    query = graph(*e[:5], parts_boxes=boxes)
+    hole = e[23]
+    first_quarter = np.zeros((4, 4), np.float32)
+    first_quarter[:, 0] = 1.0
+    sliver = replace(graph(e[0], e[1], hole, hole, hole, parts_boxes=boxes), drawn=first_quarter)
+    true_class = graph(e[0], *(near(i, 0.9, 4 + i) for i in range(1, 5)), parts_boxes=boxes)
+    others = [graph(e[0], near(1, 0.5, 9 + k), near(2, 0.5, 13 + k), near(3, 0.5, 17 + k), near(4, 0.4, 21), parts_boxes=boxes) for k in range(4)]
+    train, labels = [true_class, sliver, *others], list(range(6))
+    alone = GraphMatcher.of(train, labels, 6, 0.0, standardise=True, weigh_drawn=True)
+    assert alone.predict([query]).argmax() == 1
+    with_prior = GraphMatcher.of(train, labels, 6, 0.0, standardise=True, weigh_drawn=True, drawn_prior=1.0)
+    assert with_prior.predict([query]).argmax() == 0
+    # The true class is drawn everywhere: the prior leaves its score as it was.
+    assert with_prior.similarities(query)[0] == pytest.approx(alone.similarities(query)[0], rel=1e-5)
+    with pytest.raises(InputError, match="drawn_prior"):
+        GraphMatcher.of(train, labels, 6, 0.0, standardise=True, weigh_drawn=True, drawn_prior=-1.0)
 
 
 def test_standardised_parts_give_every_part_an_equal_say():
@@ -238,10 +274,13 @@ def test_the_saved_state_scores_the_same_and_a_broken_one_is_refused():
     assert again.standardise
     np.testing.assert_array_equal(again.predict(query), standardised.predict(query))
     drawn = [replace(t, drawn=np.full((2, 2), 0.5 + 0.25 * k, np.float32)) for k, t in enumerate(train)]
-    judged = GraphMatcher.of(drawn, [2, 0, 1], 3, whole_weight=0.0, layout_weight=0.5, standardise=True, weigh_drawn=True)
+    judged = GraphMatcher.of(drawn, [2, 0, 1], 3, whole_weight=0.0, layout_weight=0.5, standardise=True, weigh_drawn=True, drawn_prior=2.0)
     again = GraphMatcher.from_state(judged.state_dict())
     np.testing.assert_array_equal(again.drawn, judged.drawn)
+    assert again.drawn_prior == 2.0
     np.testing.assert_array_equal(again.predict(query), judged.predict(query))
+    # A state saved before the prior existed weighed by what was drawn alone.
+    assert GraphMatcher.from_state({k: v for k, v in judged.state_dict().items() if k != "drawn_prior"}).drawn_prior == 0.0
     with pytest.raises(InputError, match="drawn grids"):
         GraphMatcher.from_state({**judged.state_dict(), "drawn": judged.drawn[:2]})
     state = matcher.state_dict()

@@ -91,6 +91,14 @@ class TrainingConfig(Strict):
         "graph's image was drawn where the part stands, and each training part's by how much was drawn under it, so a "
         "pseudo-view with holes is judged on what it shows (parts judged where drawn).",
     )
+    match_drawn_prior: float = Field(
+        default=0.0,
+        ge=0.0,
+        le=1000.0,
+        description="match_drawn: how many of the query's parts' worth of each training graph's plain mean its drawn-weighted "
+        "mean starts from, so a pseudo-view drawn under only a few of the query's parts is not judged on those few alone "
+        "(0: weighted by what was drawn alone).",
+    )
     hidden: int = Field(default=256, gt=0, le=8192, description="Hidden width of the GCN.")
     layers: int = Field(default=2, ge=1, le=32, description="Graph-convolution layers.")
     dropout: float = Field(default=0.0, ge=0.0, lt=1.0, description="Dropout on the hidden node states and on the pooled state.")

@@ -30,6 +30,9 @@ training graphs. A query graph is compared with every training graph:
   is judged on what it shows; and each training part's own vote counts by the share drawn
   at its centre (a part cut out of a hole describes nothing seen). Without it, a nearly
   whole render of a neighbouring class outscores the true class's half-drawn one.
+  ``drawn_prior`` starts each graph's weighted mean from that many parts' worth of its
+  plain mean: a pseudo-view drawn under only a few of the query's parts (far from its
+  source views, at L3) is then not judged on those few alone.
 
 The similarity of two graphs is ``whole_weight`` times the first plus the rest times the
 part match (the whole image alone where either graph has no part), and a class scores the
@@ -112,6 +115,7 @@ class GraphMatcher:
         layout_sigma: float = 0.3,
         standardise: bool = False,
         drawn: np.ndarray | None = None,
+        drawn_prior: float = 0.0,
     ) -> None:
         node_ptr, labels = np.asarray(node_ptr, np.int64), np.asarray(labels, np.int64)
         if (
@@ -131,6 +135,8 @@ class GraphMatcher:
             raise InputError(f"graph matcher: layout_sigma must be positive, got {layout_sigma}")
         if drawn is not None and (drawn.ndim != 3 or len(drawn) != len(labels) or drawn.shape[1] != drawn.shape[2]):
             raise InputError(f"graph matcher: expected ({len(labels)}, B, B) drawn grids, one per training graph, got {drawn.shape}")
+        if not np.isfinite(drawn_prior) or drawn_prior < 0:
+            raise InputError(f"graph matcher: drawn_prior must be a count of parts (0 or more), got {drawn_prior}")
         self.features, self.centres = np.asarray(features, np.float32), np.asarray(centres, np.float32)
         self.node_ptr, self.labels = node_ptr, labels
         self.num_classes, self.whole_weight = num_classes, whole_weight
@@ -149,6 +155,7 @@ class GraphMatcher:
         self._part_starts = np.concatenate([[0], np.cumsum(self._part_counts)[:-1]])[has]
         # Parts judged where drawn: each training graph with parts' grid of drawn shares (None: not weighed).
         self.drawn = None if drawn is None else np.asarray(drawn, np.float32)
+        self.drawn_prior = float(drawn_prior)
         self._drawn_with_parts = None if self.drawn is None else self.drawn[self._with_parts]
         self._train_part_drawn = None
         if self.drawn is not None:  # each training part's own graph's drawn share at the part's centre
@@ -166,13 +173,15 @@ class GraphMatcher:
         layout_sigma: float = 0.3,
         standardise: bool = False,
         weigh_drawn: bool = False,
+        drawn_prior: float = 0.0,
     ) -> GraphMatcher:
-        """The matcher of ``graphs``; ``weigh_drawn``: judge the query's parts where each graph was drawn."""
+        """The matcher of ``graphs``; ``weigh_drawn``: judge the query's parts where each graph was drawn, each graph's
+        weighted mean starting from ``drawn_prior`` parts' worth of its plain mean."""
         node_ptr = np.concatenate([[0], np.cumsum([g.num_nodes for g in graphs])])
         features = _unit(np.concatenate([g.features for g in graphs])) if graphs else np.zeros((0, 1), np.float32)
         centres = np.concatenate([part_centres(g) for g in graphs]) if graphs else np.zeros((0, 2), np.float32)
         drawn = drawn_grids(graphs) if weigh_drawn else None
-        return cls(features, centres, node_ptr, np.asarray(labels), num_classes, whole_weight, layout_weight, layout_sigma, standardise, drawn)
+        return cls(features, centres, node_ptr, np.asarray(labels), num_classes, whole_weight, layout_weight, layout_sigma, standardise, drawn, drawn_prior)
 
     def state_dict(self) -> dict[str, np.ndarray]:
         return {
@@ -185,7 +194,7 @@ class GraphMatcher:
             "layout_weight": np.array(self.layout_weight),
             "layout_sigma": np.array(self.layout_sigma),
             "standardise": np.array(self.standardise),
-            **({} if self.drawn is None else {"drawn": self.drawn}),
+            **({} if self.drawn is None else {"drawn": self.drawn, "drawn_prior": np.array(self.drawn_prior)}),
         }
 
     @classmethod
@@ -203,6 +212,7 @@ class GraphMatcher:
                 # A state saved before standardised parts (or parts judged where drawn) existed matched without them.
                 bool(state.get("standardise", False)),
                 state.get("drawn"),
+                float(state.get("drawn_prior", 0.0)),
             )
         except KeyError as exc:
             raise InputError(f"graph matcher: saved state without {exc}") from None
@@ -229,7 +239,8 @@ class GraphMatcher:
         best twin in each training graph and each training part's in the query, both means averaged; with
         standardised parts, each query part's twins and the training graphs' means are standardised over the graphs first.
         ``query_weights`` (query parts, training graphs with parts), with parts judged where drawn: how much each query
-        part counts in each graph's mean; each training part then counts by its own graph's drawn share at it."""
+        part counts in each graph's mean (plus ``drawn_prior`` parts at the plain mean); each training part then counts
+        by its own graph's drawn share at it."""
         best_twins = np.maximum.reduceat(pairs, self._part_starts, axis=1)  # (query parts, training graphs with parts)
         if self._train_part_drawn is None:
             train_to_query = np.add.reduceat(pairs.max(axis=0), self._part_starts) / self._part_counts[self._with_parts]
@@ -240,8 +251,10 @@ class GraphMatcher:
             best_twins, train_to_query = standardised(best_twins, axis=1), standardised(train_to_query, axis=0)
         if query_weights is None:
             query_to_train = best_twins.mean(axis=0)
-        else:  # a graph drawn nowhere under the query's parts: its query side counts as average (0 standardised)
-            query_to_train = (query_weights * best_twins).sum(axis=0) / np.maximum(query_weights.sum(axis=0), 1e-6)
+        else:  # a graph drawn nowhere under the query's parts: its plain mean (without a prior: average, 0 standardised)
+            prior = self.drawn_prior
+            weighted = (query_weights * best_twins).sum(axis=0) + prior * best_twins.mean(axis=0)
+            query_to_train = weighted / np.maximum(query_weights.sum(axis=0) + prior, 1e-6)
         return (query_to_train + train_to_query) / 2
 
     def similarities(self, graph: SceneGraph) -> np.ndarray:

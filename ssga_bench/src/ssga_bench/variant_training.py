@@ -112,6 +112,7 @@ def _fit_classifier(
             "layout_sigma": training.layout_sigma,
             "match_standardise": training.match_standardise,
             "match_drawn": training.match_drawn,
+            "match_drawn_prior": training.match_drawn_prior,
         }
         matcher = GraphMatcher.of(
             graphs,
@@ -122,6 +123,7 @@ def _fit_classifier(
             training.layout_sigma,
             training.match_standardise,
             training.match_drawn,
+            training.match_drawn_prior,
         )
         atomic_write_bytes(folder / CLASSIFIER_FILES["graph-match"], npz_bytes(matcher.state_dict()))
         return rule
