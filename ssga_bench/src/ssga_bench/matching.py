@@ -157,10 +157,11 @@ class GraphMatcher:
         self.drawn = None if drawn is None else np.asarray(drawn, np.float32)
         self.drawn_prior = float(drawn_prior)
         self._drawn_with_parts = None if self.drawn is None else self.drawn[self._with_parts]
-        self._train_part_drawn = None
-        if self.drawn is not None:  # each training part's own graph's drawn share at the part's centre
+        self._train_part_drawn = self._train_drawn_totals = None
+        if self.drawn is not None:  # each training part's own graph's drawn share at the part's centre, and their sums
             owner = np.repeat(np.arange(len(labels)), counts)[is_part]
             self._train_part_drawn = self._drawn_share(self.drawn[owner], self._part_centres, diagonal=True)
+            self._train_drawn_totals = np.maximum(np.add.reduceat(self._train_part_drawn, self._part_starts), 1e-6)
 
     @classmethod
     def of(
@@ -245,8 +246,7 @@ class GraphMatcher:
         if self._train_part_drawn is None:
             train_to_query = np.add.reduceat(pairs.max(axis=0), self._part_starts) / self._part_counts[self._with_parts]
         else:
-            drawn = self._train_part_drawn
-            train_to_query = np.add.reduceat(pairs.max(axis=0) * drawn, self._part_starts) / np.maximum(np.add.reduceat(drawn, self._part_starts), 1e-6)
+            train_to_query = np.add.reduceat(pairs.max(axis=0) * self._train_part_drawn, self._part_starts) / self._train_drawn_totals
         if self.standardise:
             best_twins, train_to_query = standardised(best_twins, axis=1), standardised(train_to_query, axis=0)
         if query_weights is None:
