@@ -277,20 +277,24 @@ def test_graph_matching_classifies_without_training_a_network(tmp_path, dataset,
 
 
 def test_parts_judged_where_drawn_keep_each_pseudo_views_drawn_grid_in_the_matcher(tmp_path, dataset, stand_in_registry):
-    exp = experiment(stand_in_registry, classifier="graph-match", match_whole=0.0, match_standardise=True, match_drawn=True, match_drawn_prior=2.0)
+    exp = experiment(
+        stand_in_registry, classifier="graph-match", match_whole=0.0, match_standardise=True, match_drawn=True, match_drawn_prior=2.0, match_burst=0.9
+    )
     run_experiment(exp, dataset, tmp_path)
     folder = tmp_path / "variants" / "PC-ST_PDS"
     record = json.loads((folder / "training.json").read_text())
     assert record["match_drawn"] is True and record["match_drawn_prior"] == 2.0
+    assert record["match_burst"] == 0.9 and record["match_burst_power"] == 1.0
     state = np.load(folder / "matcher.npz")
     assert float(state["drawn_prior"]) == 2.0
+    assert float(state["burst"]) == pytest.approx(0.9) and float(state["burst_power"]) == 1.0
     drawn, real = state["drawn"], len(dataset.split("train"))
     assert drawn.shape == (len(state["labels"]), 16, 16)
     assert (drawn[:real] == 1).all()  # the real views: all of them seen
     assert drawn[real:].min() < 1  # the stand-in synthesizer's sideways moves leave holes
     plain = tmp_path / "plain"
     run_experiment(experiment(stand_in_registry, classifier="graph-match", match_whole=0.0, match_standardise=True), dataset, plain)
-    assert "drawn" not in np.load(plain / "variants" / "PC-ST_PDS" / "matcher.npz")
+    assert not {"drawn", "burst"} & set(np.load(plain / "variants" / "PC-ST_PDS" / "matcher.npz").files)
     assert not np.array_equal(np.load(plain / "variants" / "PC-ST_PDS" / "scores.npy"), np.load(folder / "scores.npy"))
 
 

@@ -67,14 +67,29 @@ def drawn_at(train: SceneGraph, box) -> float:
     return float(train.drawn[min(int(v * side), side - 1), min(int(u * side), side - 1)])
 
 
+def repeat_votes(g: SceneGraph, threshold: float | None, power: float) -> list[float]:
+    """Each part's vote with repeated parts counted once: 1 / (its parts above ``threshold`` cosine, itself included) ** power."""
+    parts = [unit(f) for f in g.features[1:]]
+    if threshold is None:
+        return [1.0] * len(parts)
+    return [sum(float(a @ b) > threshold for b in parts) ** -power for a in parts]
+
+
 def naive_standardised(
-    query: SceneGraph, train: list[SceneGraph], whole_weight: float, layout_weight: float, judged_where_drawn: bool = False, prior: float = 0.0
+    query: SceneGraph,
+    train: list[SceneGraph],
+    whole_weight: float,
+    layout_weight: float,
+    judged_where_drawn: bool = False,
+    prior: float = 0.0,
+    burst: float | None = None,
+    burst_power: float = 1.0,
 ) -> np.ndarray:
     """Standardised parts, one pair at a time: each query part's best twins and the training parts' mean best twins
     standardised over the training graphs (with parts), then mixed as the plain rule mixes them; judged where drawn,
     each query part's standardised twin in a graph counts by the share of that graph drawn at the part's centre (plus
     ``prior`` parts' worth of the graph's plain mean of them), and each training part's best twin in the query by the
-    share of its own graph drawn at its centre."""
+    share of its own graph drawn at its centre; with ``burst``, every part's count also by :func:`repeat_votes`."""
     whole = z([unit(query.features[0]) @ unit(t.features[0]) for t in train])
     with_parts = [i for i, t in enumerate(train) if t.num_parts]
     out = whole.copy()
@@ -89,12 +104,16 @@ def naive_standardised(
                 )
             twins.append(pairs.max(axis=1))
             own = [drawn_at(train[i], box) if judged_where_drawn else 1.0 for box in train[i].boxes[1:]]
+            own = np.multiply(own, repeat_votes(train[i], burst, burst_power))
             means.append(np.sum(pairs.max(axis=0) * own) / np.sum(own))
         per_part = np.array([z(row) for row in np.array(twins).T])  # (query parts, graphs with parts), standardised
+        votes = np.array(repeat_votes(query, burst, burst_power))[:, None]
+        plain = (votes * per_part).sum(axis=0) / votes.sum()
         counts = np.ones_like(per_part)
         if judged_where_drawn:
             counts = np.array([[drawn_at(train[g], box) for g in with_parts] for box in query.boxes[1:]])
-        query_side = ((counts * per_part).sum(axis=0) + prior * per_part.mean(axis=0)) / (counts.sum(axis=0) + prior)
+        counts = counts * votes
+        query_side = ((counts * per_part).sum(axis=0) + prior * plain) / (counts.sum(axis=0) + prior)
         return (query_side + z(means)) / 2
 
     parts = (1 - layout_weight) * both_ways(False) + layout_weight * both_ways(True)
@@ -110,6 +129,62 @@ def test_standardised_parts_are_the_rule_written_out(whole_weight, layout_weight
     for q in [graph(*rng.random((1 + k, 6))) for k in (4, 2, 0)]:
         expected = naive_standardised(q, train, whole_weight, layout_weight) if q.num_parts else z([unit(q.features[0]) @ unit(t.features[0]) for t in train])
         np.testing.assert_allclose(matcher.similarities(q), expected, rtol=1e-4, atol=1e-4)
+
+
+def repeating(rng: np.random.Generator, parts: int, dims: int = 6) -> SceneGraph:
+    """A graph whose parts come in groups of near copies (cosines about 0.99 within a group), as a brick wall's do."""
+    looks = rng.random((max(parts // 2, 1), dims))
+    copies = looks[rng.integers(0, len(looks), parts)] + 0.02 * rng.random((parts, dims))
+    return graph(rng.random(dims), *copies)
+
+
+@pytest.mark.parametrize(("layout_weight", "prior", "burst", "burst_power"), [(0.0, 0.0, 0.95, 1.0), (0.5, 2.0, 0.95, 0.5), (0.5, 2.0, 0.9, 1.0)])
+def test_repeated_parts_counted_once_are_the_rule_written_out(layout_weight, prior, burst, burst_power):
+    rng = np.random.default_rng(11)
+    train = [repeating(rng, k) for k in (3, 5, 4, 6, 2)] + [graph(rng.random(6))]
+    grids = [rng.choice([0.0, 0.5, 1.0], size=(4, 4)).astype(np.float32) for _ in range(3)]
+    train = [replace(t, drawn=d) for t, d in zip(train, [grids[0], None, grids[1], grids[2], None, None])]
+    labels = [0, 1, 1, 2, 0, 3]
+    matcher = GraphMatcher.of(train, labels, 4, 0.0, layout_weight, standardise=True, weigh_drawn=True, drawn_prior=prior, burst=burst, burst_power=burst_power)
+    every_part = GraphMatcher.of(train, labels, 4, 0.0, layout_weight, standardise=True, weigh_drawn=True, drawn_prior=prior)
+    for q in [repeating(rng, k) for k in (6, 4)]:
+        expected = naive_standardised(q, train, 0.0, layout_weight, judged_where_drawn=True, prior=prior, burst=burst, burst_power=burst_power)
+        np.testing.assert_allclose(matcher.similarities(q), expected, rtol=1e-4, atol=1e-4)
+        assert not np.allclose(matcher.similarities(q), every_part.similarities(q))
+    # Parts that repeat nothing (no two above the threshold) vote as they did.
+    distinct = [graph(*np.eye(6)[: 1 + k]) for k in (3, 5, 2)]
+    q = graph(*np.eye(6)[[0, 2, 4, 5]])
+    np.testing.assert_allclose(
+        GraphMatcher.of(distinct, [0, 1, 2], 3, 0.0, standardise=True, burst=0.5).similarities(q),
+        GraphMatcher.of(distinct, [0, 1, 2], 3, 0.0, standardise=True).similarities(q),
+        rtol=1e-6,
+    )
+
+
+def test_a_wall_of_one_texture_does_not_outvote_the_part_that_tells_the_place():
+    # The query sees a brick wall, cut into four near-identical parts, and a tiled floor. The true place has the same
+    # wall and floor; a place elsewhere in the home has a brick wall too, more like the query's, and a floor half like
+    # it. Every brick part votes for the second place; counted as one repeated element, the wall's four votes weigh
+    # as one, and the floor decides.
+    dims = 24
+    e = np.eye(dims)
+
+    def near(i, cosine, spare):
+        return cosine * e[i] + np.sqrt(1 - cosine**2) * e[spare]
+
+    brick = [near(1, 0.995, 20 + k) for k in range(4)]  # the same texture, a little different in each part
+    query = graph(e[0], *brick, e[2])
+    true_place = graph(e[0], near(1, 0.8, 5), near(1, 0.8, 6), near(2, 0.9, 7))  # its wall seen in other light
+    other_brick = graph(e[0], near(1, 0.97, 8), near(1, 0.97, 9), near(2, 0.5, 10))  # brick again, a floor half like it
+    others = [graph(e[0], near(1, 0.5, 11 + k), near(2, 0.5, 15 + k)) for k in range(4)]
+    train, labels = [true_place, other_brick, *others], list(range(6))
+    every_part = GraphMatcher.of(train, labels, 6, 0.0, standardise=True)
+    assert every_part.predict([query]).argmax() == 1
+    counted_once = GraphMatcher.of(train, labels, 6, 0.0, standardise=True, burst=0.85)
+    assert counted_once.predict([query]).argmax() == 0
+    for bad in ({"burst": 1.5}, {"burst": 0.8, "burst_power": -1.0}):
+        with pytest.raises(InputError, match="burst"):
+            GraphMatcher.of(train, labels, 6, 0.0, standardise=True, **bad)
 
 
 @pytest.mark.parametrize(("layout_weight", "prior"), [(0.0, 0.0), (0.5, 0.0), (0.5, 2.0)])
@@ -281,6 +356,12 @@ def test_the_saved_state_scores_the_same_and_a_broken_one_is_refused():
     np.testing.assert_array_equal(again.predict(query), judged.predict(query))
     # A state saved before the prior existed weighed by what was drawn alone.
     assert GraphMatcher.from_state({k: v for k, v in judged.state_dict().items() if k != "drawn_prior"}).drawn_prior == 0.0
+    once = GraphMatcher.of(drawn, [2, 0, 1], 3, whole_weight=0.0, standardise=True, weigh_drawn=True, burst=0.3, burst_power=0.5)
+    again = GraphMatcher.from_state(once.state_dict())
+    assert (again.burst, again.burst_power) == (pytest.approx(0.3), 0.5)
+    np.testing.assert_array_equal(again.predict(query), once.predict(query))
+    # A state saved before repeated parts were counted once let every part vote.
+    assert GraphMatcher.from_state({k: v for k, v in once.state_dict().items() if not k.startswith("burst")}).burst is None
     with pytest.raises(InputError, match="drawn grids"):
         GraphMatcher.from_state({**judged.state_dict(), "drawn": judged.drawn[:2]})
     state = matcher.state_dict()

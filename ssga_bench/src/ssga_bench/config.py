@@ -99,6 +99,21 @@ class TrainingConfig(Strict):
         "mean starts from, so a pseudo-view drawn under only a few of the query's parts is not judged on those few alone "
         "(0: weighted by what was drawn alone).",
     )
+    match_burst: float | None = Field(
+        default=None,
+        ge=-1.0,
+        le=1.0,
+        description="classifier = 'graph-match': parts of one image whose cosine similarity exceeds this repeat one "
+        "another (a brick wall cut into many parts) and share a vote, on the query's side and each training graph's, so "
+        "one texture does not decide a match by its count of parts (repeated parts counted once); unset: every part votes.",
+    )
+    match_burst_power: float = Field(
+        default=1.0,
+        ge=0.0,
+        le=4.0,
+        description="match_burst: a part with n repeats in its image (itself included) votes n ** -this (1: they share one "
+        "vote; 0.5: the square root of their count).",
+    )
     hidden: int = Field(default=256, gt=0, le=8192, description="Hidden width of the GCN.")
     layers: int = Field(default=2, ge=1, le=32, description="Graph-convolution layers.")
     dropout: float = Field(default=0.0, ge=0.0, lt=1.0, description="Dropout on the hidden node states and on the pooled state.")

@@ -33,6 +33,15 @@ training graphs. A query graph is compared with every training graph:
   ``drawn_prior`` starts each graph's weighted mean from that many parts' worth of its
   plain mean: a pseudo-view drawn under only a few of the query's parts (far from its
   source views, at L3) is then not judged on those few alone.
+* **repeated parts counted once** (``burst``): a brick wall or a tiled floor is cut into
+  many parts that all look alike (a bench query part has 4 others of its own image above
+  cosine 0.85 on average), and each of them votes: an image that is mostly one texture is
+  decided by that texture, wherever it appears, and the one part that tells the place
+  (a doorway, a floor of another colour) is outvoted. Each part's vote counts
+  ``n ** -burst_power``, ``n`` the parts of its own graph (itself included) above cosine
+  ``burst`` to it: on both sides, the query's parts in each graph's mean and each training
+  part in its graph's. This is the burstiness of visual words (Jégou, Douze and Schmid,
+  CVPR 2009) at the level of parts.
 
 The similarity of two graphs is ``whole_weight`` times the first plus the rest times the
 part match (the whole image alone where either graph has no part), and a class scores the
@@ -85,6 +94,13 @@ def _unit(x: np.ndarray) -> np.ndarray:
     return normalise_rows(np.asarray(x, np.float32), "l2")
 
 
+def burst_weights(parts: np.ndarray, threshold: float, power: float) -> np.ndarray:
+    """``(parts,)`` each unit-length part's vote, ``n ** -power``, ``n`` the parts above cosine ``threshold`` to it (itself
+    included): the parts of one image that repeat one another share a vote."""
+    repeats = (parts @ parts.T > threshold).sum(axis=1)
+    return np.maximum(repeats, 1).astype(np.float32) ** np.float32(-power)
+
+
 def part_centres(graph: SceneGraph) -> np.ndarray:
     """``(nodes, 2)`` each node's box centre in its image, in widths and heights from the whole image's corner."""
     whole = graph.boxes[0]
@@ -116,6 +132,8 @@ class GraphMatcher:
         standardise: bool = False,
         drawn: np.ndarray | None = None,
         drawn_prior: float = 0.0,
+        burst: float | None = None,
+        burst_power: float = 1.0,
     ) -> None:
         node_ptr, labels = np.asarray(node_ptr, np.int64), np.asarray(labels, np.int64)
         if (
@@ -137,6 +155,10 @@ class GraphMatcher:
             raise InputError(f"graph matcher: expected ({len(labels)}, B, B) drawn grids, one per training graph, got {drawn.shape}")
         if not np.isfinite(drawn_prior) or drawn_prior < 0:
             raise InputError(f"graph matcher: drawn_prior must be a count of parts (0 or more), got {drawn_prior}")
+        if burst is not None and not -1 <= burst <= 1:
+            raise InputError(f"graph matcher: burst is a cosine similarity (-1 to 1), got {burst}")
+        if not np.isfinite(burst_power) or burst_power < 0:
+            raise InputError(f"graph matcher: burst_power must be 0 or more, got {burst_power}")
         self.features, self.centres = np.asarray(features, np.float32), np.asarray(centres, np.float32)
         self.node_ptr, self.labels = node_ptr, labels
         self.num_classes, self.whole_weight = num_classes, whole_weight
@@ -157,11 +179,20 @@ class GraphMatcher:
         self.drawn = None if drawn is None else np.asarray(drawn, np.float32)
         self.drawn_prior = float(drawn_prior)
         self._drawn_with_parts = None if self.drawn is None else self.drawn[self._with_parts]
-        self._train_part_drawn = self._train_drawn_totals = None
-        if self.drawn is not None:  # each training part's own graph's drawn share at the part's centre, and their sums
-            owner = np.repeat(np.arange(len(labels)), counts)[is_part]
-            self._train_part_drawn = self._drawn_share(self.drawn[owner], self._part_centres, diagonal=True)
-            self._train_drawn_totals = np.maximum(np.add.reduceat(self._train_part_drawn, self._part_starts), 1e-6)
+        self.burst, self.burst_power = (None if burst is None else float(burst)), float(burst_power)
+        # Each training part's vote on its graph's side of the match: its own graph's drawn share at its centre (parts
+        # judged where drawn) times its share of a repeated element (repeated parts counted once); None: all equal.
+        self._train_part_votes = self._train_vote_totals = None
+        if self.drawn is not None or self.burst is not None:
+            votes = np.ones(len(self._parts), np.float32)
+            if self.drawn is not None:
+                owner = np.repeat(np.arange(len(labels)), counts)[is_part]
+                votes *= self._drawn_share(self.drawn[owner], self._part_centres, diagonal=True)
+            if self.burst is not None:
+                for start, count in zip(self._part_starts, self._part_counts[self._with_parts]):
+                    votes[start : start + count] *= burst_weights(self._parts[start : start + count], self.burst, self.burst_power)
+            self._train_part_votes = votes
+            self._train_vote_totals = np.maximum(np.add.reduceat(votes, self._part_starts), 1e-6)
 
     @classmethod
     def of(
@@ -175,14 +206,20 @@ class GraphMatcher:
         standardise: bool = False,
         weigh_drawn: bool = False,
         drawn_prior: float = 0.0,
+        burst: float | None = None,
+        burst_power: float = 1.0,
     ) -> GraphMatcher:
         """The matcher of ``graphs``; ``weigh_drawn``: judge the query's parts where each graph was drawn, each graph's
-        weighted mean starting from ``drawn_prior`` parts' worth of its plain mean."""
+        weighted mean starting from ``drawn_prior`` parts' worth of its plain mean; ``burst``: count the parts of an
+        image above this cosine to one another as one repeated element (``burst_power``: how far)."""
         node_ptr = np.concatenate([[0], np.cumsum([g.num_nodes for g in graphs])])
         features = _unit(np.concatenate([g.features for g in graphs])) if graphs else np.zeros((0, 1), np.float32)
         centres = np.concatenate([part_centres(g) for g in graphs]) if graphs else np.zeros((0, 2), np.float32)
         drawn = drawn_grids(graphs) if weigh_drawn else None
-        return cls(features, centres, node_ptr, np.asarray(labels), num_classes, whole_weight, layout_weight, layout_sigma, standardise, drawn, drawn_prior)
+        return cls(
+            features, centres, node_ptr, np.asarray(labels), num_classes, whole_weight, layout_weight, layout_sigma, standardise, drawn, drawn_prior,
+            burst, burst_power,
+        )
 
     def state_dict(self) -> dict[str, np.ndarray]:
         return {
@@ -196,6 +233,7 @@ class GraphMatcher:
             "layout_sigma": np.array(self.layout_sigma),
             "standardise": np.array(self.standardise),
             **({} if self.drawn is None else {"drawn": self.drawn, "drawn_prior": np.array(self.drawn_prior)}),
+            **({} if self.burst is None else {"burst": np.array(self.burst), "burst_power": np.array(self.burst_power)}),
         }
 
     @classmethod
@@ -214,6 +252,8 @@ class GraphMatcher:
                 bool(state.get("standardise", False)),
                 state.get("drawn"),
                 float(state.get("drawn_prior", 0.0)),
+                float(state["burst"]) if "burst" in state else None,
+                float(state.get("burst_power", 1.0)),
             )
         except KeyError as exc:
             raise InputError(f"graph matcher: saved state without {exc}") from None
@@ -235,26 +275,27 @@ class GraphMatcher:
         row, col = (np.clip((centres[:, k] * blocks).astype(np.intp), 0, blocks - 1) for k in (1, 0))
         return grids[np.arange(len(grids)), row, col] if diagonal else grids[:, row, col]
 
-    def _both_ways(self, pairs: np.ndarray, query_weights: np.ndarray | None = None) -> np.ndarray:
+    def _both_ways(self, pairs: np.ndarray, query_weights: np.ndarray | None = None, query_votes: np.ndarray | None = None) -> np.ndarray:
         """``(training graphs with parts,)``: from ``(query parts, every training part)`` similarities, each query part's
         best twin in each training graph and each training part's in the query, both means averaged; with
         standardised parts, each query part's twins and the training graphs' means are standardised over the graphs first.
         ``query_weights`` (query parts, training graphs with parts), with parts judged where drawn: how much each query
         part counts in each graph's mean (plus ``drawn_prior`` parts at the plain mean); each training part then counts
-        by its own graph's drawn share at it."""
+        by its own graph's drawn share at it. ``query_votes`` (query parts,), with repeated parts counted once: each query
+        part's share of a vote, in every mean of the query's side (each training part's is set once, in ``__init__``)."""
         best_twins = np.maximum.reduceat(pairs, self._part_starts, axis=1)  # (query parts, training graphs with parts)
-        if self._train_part_drawn is None:
+        if self._train_part_votes is None:
             train_to_query = np.add.reduceat(pairs.max(axis=0), self._part_starts) / self._part_counts[self._with_parts]
         else:
-            train_to_query = np.add.reduceat(pairs.max(axis=0) * self._train_part_drawn, self._part_starts) / self._train_drawn_totals
+            train_to_query = np.add.reduceat(pairs.max(axis=0) * self._train_part_votes, self._part_starts) / self._train_vote_totals
         if self.standardise:
             best_twins, train_to_query = standardised(best_twins, axis=1), standardised(train_to_query, axis=0)
+        plain = best_twins.mean(axis=0) if query_votes is None else query_votes @ best_twins / query_votes.sum()
         if query_weights is None:
-            query_to_train = best_twins.mean(axis=0)
+            query_to_train = plain
         else:  # a graph drawn nowhere under the query's parts: its plain mean (without a prior: average, 0 standardised)
-            prior = self.drawn_prior
-            weighted = (query_weights * best_twins).sum(axis=0) + prior * best_twins.mean(axis=0)
-            query_to_train = weighted / np.maximum(query_weights.sum(axis=0) + prior, 1e-6)
+            weights = query_weights if query_votes is None else query_weights * query_votes[:, None]
+            query_to_train = ((weights * best_twins).sum(axis=0) + self.drawn_prior * plain) / np.maximum(weights.sum(axis=0) + self.drawn_prior, 1e-6)
         return (query_to_train + train_to_query) / 2
 
     def similarities(self, graph: SceneGraph) -> np.ndarray:
@@ -269,10 +310,11 @@ class GraphMatcher:
         pairs = parts @ self._parts.T  # (query parts, every training part)
         centres = part_centres(graph)[1:]
         weights = None if self._drawn_with_parts is None else self._drawn_share(self._drawn_with_parts, centres).T
-        part_match = self._both_ways(pairs, weights)
+        votes = None if self.burst is None else burst_weights(parts, self.burst, self.burst_power)
+        part_match = self._both_ways(pairs, weights, votes)
         if self.layout_weight > 0:
             nearness = np.exp(self._in_place(centres) @ self._train_in_place)
-            part_match = (1 - self.layout_weight) * part_match + self.layout_weight * self._both_ways(pairs * nearness, weights)
+            part_match = (1 - self.layout_weight) * part_match + self.layout_weight * self._both_ways(pairs * nearness, weights, votes)
         matched = similarity.copy()
         matched[self._with_parts] = self.whole_weight * similarity[self._with_parts] + (1 - self.whole_weight) * part_match
         return matched

@@ -113,6 +113,8 @@ def _fit_classifier(
             "match_standardise": training.match_standardise,
             "match_drawn": training.match_drawn,
             "match_drawn_prior": training.match_drawn_prior,
+            "match_burst": training.match_burst,
+            "match_burst_power": training.match_burst_power,
         }
         matcher = GraphMatcher.of(
             graphs,
@@ -124,6 +126,8 @@ def _fit_classifier(
             training.match_standardise,
             training.match_drawn,
             training.match_drawn_prior,
+            training.match_burst,
+            training.match_burst_power,
         )
         atomic_write_bytes(folder / CLASSIFIER_FILES["graph-match"], npz_bytes(matcher.state_dict()))
         return rule
