@@ -34,8 +34,8 @@ training graphs. A query graph is compared with every training graph:
   plain mean: a pseudo-view drawn under only a few of the query's parts (far from its
   source views, at L3) is then not judged on those few alone.
 * **repeated parts counted once** (``burst``): a brick wall or a tiled floor is cut into
-  many parts that all look alike (a bench query part has 4 others of its own image above
-  cosine 0.85 on average), and each of them votes: an image that is mostly one texture is
+  many parts that all look alike (a bench query part has 5 to 6 others of its own image
+  above cosine 0.85 on average), and each of them votes: an image that is mostly one texture is
   decided by that texture, wherever it appears, and the one part that tells the place
   (a doorway, a floor of another colour) is outvoted. Each part's vote counts
   ``n ** -burst_power``, ``n`` the parts of its own graph (itself included) above cosine
