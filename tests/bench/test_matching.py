@@ -23,6 +23,16 @@ def graph(*nodes, parts_boxes=None) -> SceneGraph:
     return SceneGraph(boxes=boxes, features=features, weights=np.ones(n, np.float32), edges=np.zeros((0, 2), np.int64))
 
 
+DIMS = 24
+"""Feature length of the hand-built graphs below (axes to spare for near copies)."""
+
+
+def near(i: int, cosine: float, spare: int) -> np.ndarray:
+    """A unit vector at ``cosine`` to axis ``i``, the rest along the spare axis ``spare``."""
+    e = np.eye(DIMS)
+    return cosine * e[i] + np.sqrt(1 - cosine**2) * e[spare]
+
+
 def unit(x):
     x = np.asarray(x, dtype=np.float64)
     return x / np.linalg.norm(x)
@@ -166,11 +176,7 @@ def test_a_wall_of_one_texture_does_not_outvote_the_part_that_tells_the_place():
     # wall and floor; a place elsewhere in the home has a brick wall too, more like the query's, and a floor half like
     # it. Every brick part votes for the second place; counted as one repeated element, the wall's four votes weigh
     # as one, and the floor decides.
-    dims = 24
-    e = np.eye(dims)
-
-    def near(i, cosine, spare):
-        return cosine * e[i] + np.sqrt(1 - cosine**2) * e[spare]
+    e = np.eye(DIMS)
 
     brick = [near(1, 0.995, 20 + k) for k in range(4)]  # the same texture, a little different in each part
     query = graph(e[0], *brick, e[2])
@@ -218,11 +224,7 @@ def test_a_half_drawn_pseudo_view_is_judged_on_what_it_shows():
     # has the lamp in place and a hole where the window is (its hole, described, looks like nothing). The real
     # view's class, rendered nearly whole, has a lamp and a window like them but not the same. Judged everywhere, the
     # hole costs the true class the window; judged where drawn, the window does not count against it.
-    dims = 16
-    e = np.eye(dims)
-
-    def near(i, cosine, spare):
-        return cosine * e[i] + np.sqrt(1 - cosine**2) * e[spare]
+    e = np.eye(DIMS)
 
     left, right = [5, 10, 45, 40], [55, 10, 95, 40]
     query = graph(e[0], e[1], e[2], parts_boxes=[left, right])
@@ -244,11 +246,7 @@ def test_a_prior_keeps_a_pseudo_view_drawn_under_one_part_from_winning_on_it_alo
     # the query exactly; the rest is holes. Judged where drawn alone, that one part is its whole query side, and it
     # outscores the true class's render, which matches every part well but none exactly. A prior of one part's worth of
     # its plain mean (holes and all) weighs in what the sliver does not show.
-    dims = 24
-    e = np.eye(dims)
-
-    def near(i, cosine, spare):
-        return cosine * e[i] + np.sqrt(1 - cosine**2) * e[spare]
+    e = np.eye(DIMS)
 
     boxes = [[5, 10, 20, 40], [30, 10, 45, 40], [55, 10, 70, 40], [80, 10, 95, 40]]
     query = graph(*e[:5], parts_boxes=boxes)
@@ -273,11 +271,7 @@ def test_standardised_parts_give_every_part_an_equal_say():
     # Three of the query's parts look a little more like place 0's than like any other's; one part (an accident of
     # segmentation) matches one part of place 1 exactly and no other place's at all. A plain mean follows the one
     # part whose similarities spread widest; standardised, the three that agree outvote it.
-    dims = 12
-    e = np.eye(dims)
-
-    def near(i, cosine, spare):  # a unit vector at `cosine` to axis i, the rest along a spare axis
-        return cosine * e[i] + np.sqrt(1 - cosine**2) * e[spare]
+    e = np.eye(DIMS)
 
     query = graph(e[0], e[1], e[2], e[3], e[4])
     places = [graph(e[0], near(1, 0.9, 6), near(2, 0.9, 6), near(3, 0.9, 6))]
