@@ -177,7 +177,6 @@ def test_a_wall_of_one_texture_does_not_outvote_the_part_that_tells_the_place():
     # it. Every brick part votes for the second place; counted as one repeated element, the wall's four votes weigh
     # as one, and the floor decides.
     e = np.eye(DIMS)
-
     brick = [near(1, 0.995, 20 + k) for k in range(4)]  # the same texture, a little different in each part
     query = graph(e[0], *brick, e[2])
     true_place = graph(e[0], near(1, 0.8, 5), near(1, 0.8, 6), near(2, 0.9, 7))  # its wall seen in other light
@@ -225,7 +224,6 @@ def test_a_half_drawn_pseudo_view_is_judged_on_what_it_shows():
     # view's class, rendered nearly whole, has a lamp and a window like them but not the same. Judged everywhere, the
     # hole costs the true class the window; judged where drawn, the window does not count against it.
     e = np.eye(DIMS)
-
     left, right = [5, 10, 45, 40], [55, 10, 95, 40]
     query = graph(e[0], e[1], e[2], parts_boxes=[left, right])
     hole = e[15]
@@ -247,7 +245,6 @@ def test_a_prior_keeps_a_pseudo_view_drawn_under_one_part_from_winning_on_it_alo
     # outscores the true class's render, which matches every part well but none exactly. A prior of one part's worth of
     # its plain mean (holes and all) weighs in what the sliver does not show.
     e = np.eye(DIMS)
-
     boxes = [[5, 10, 20, 40], [30, 10, 45, 40], [55, 10, 70, 40], [80, 10, 95, 40]]
     query = graph(*e[:5], parts_boxes=boxes)
     hole = e[23]
@@ -272,7 +269,6 @@ def test_standardised_parts_give_every_part_an_equal_say():
     # segmentation) matches one part of place 1 exactly and no other place's at all. A plain mean follows the one
     # part whose similarities spread widest; standardised, the three that agree outvote it.
     e = np.eye(DIMS)
-
     query = graph(e[0], e[1], e[2], e[3], e[4])
     places = [graph(e[0], near(1, 0.9, 6), near(2, 0.9, 6), near(3, 0.9, 6))]
     places.append(graph(e[0], near(1, 0.8, 7), near(2, 0.8, 7), near(3, 0.8, 7), e[4]))
