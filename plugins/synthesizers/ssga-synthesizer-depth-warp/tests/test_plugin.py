@@ -59,11 +59,14 @@ def test_config_is_validated():
         depth_edge=0.03,
         fill_holes="nearest",
         max_hole=16,
+        fill_unseen="none",
+        wall_band=0.45,
         max_depth=50.0,
     )
     bad_values = (
         {"splat": 0}, {"splat": 5}, {"fill_holes": "blur"}, {"max_depth": 0.0}, {"max_hole": 1}, {"radius": 2},
         {"footprint": "round"}, {"resample": "cubic"}, {"max_footprint": 0}, {"depth_edge": 0.0}, {"depth_edge": 2.0},
+        {"fill_unseen": "inpaint"}, {"wall_band": 0.0}, {"wall_band": 3.0},
     )  # fmt: skip
     for bad in bad_values:
         with pytest.raises(ValidationError):

@@ -11,7 +11,8 @@ import numpy as np
 from pydantic import Field
 
 from ssga_core import Data, Pose, StageConfig, Synthesis, Synthesizer, View, hookimpl
-from ssga_synthesizer_depth_warp.warp import Source, forward_warp_many, surface_links
+from ssga_synthesizer_depth_warp.layout import layout_fill
+from ssga_synthesizer_depth_warp.warp import Source, forward_warp_many, small_holes, surface_links
 
 
 class DepthWarpConfig(StageConfig):
@@ -81,6 +82,19 @@ class DepthWarpConfig(StageConfig):
         "part of the target the source never saw) stay black. 16 measured best on the seen content (29.7 dB; "
         "8: 29.5, 4: 26.0 as cracks stay open; 32: 29.7 while painting more of what no source saw).",
     )
+    fill_unseen: Literal["none", "layout"] = Field(
+        default="none",
+        description="What fills the holes left after 'fill_holes' (what no source saw): 'none' leaves them "
+        "black; 'layout' draws them as the room's floor, walls and ceiling, placed by the sources' own points "
+        "and textured from them (ssga_synthesizer_depth_warp.layout). Filled pixels get the layout's depth.",
+    )
+    wall_band: float = Field(
+        default=0.45,
+        gt=0.05,
+        le=2.0,
+        description="With fill_unseen = 'layout': the band of wall (metres below the ceiling) whose points place "
+        "the walls and give their texture: above doors and furniture.",
+    )
     max_depth: float = Field(
         default=50.0,
         gt=0.0,
@@ -142,8 +156,14 @@ class DepthWarp(Synthesizer):
             fill=config.fill_holes,
             max_hole=config.max_hole,
         )
+        rgb, depth = warps[0].rgb, warps[0].depth
+        if config.fill_unseen == "layout":
+            unseen = ~warps[0].covered
+            if config.fill_holes != "none":
+                unseen &= ~small_holes(warps[0].covered, config.max_hole)
+            rgb, depth, _ = layout_fill(rgb, depth, unseen, camera, target, views, wall_band=config.wall_band, max_depth=config.max_depth)
         # One synthetic view, the fused render, seen through each source's own point map.
-        synthetic = View(rgb=warps[0].rgb, pose=target, camera=camera, depth=warps[0].depth, synthetic=True)
+        synthetic = View(rgb=rgb, pose=target, camera=camera, depth=depth, synthetic=True)
         return [Synthesis(view=synthetic, target_uv=w.target_uv, visible=w.visible) for w in warps]
 
     def _surface_links(self, view: View) -> np.ndarray:
