@@ -31,16 +31,18 @@ def test_is_discovered_by_a_fresh_plugin_manager():
         DepthWarpConfig(resample="nearest"),
         DepthWarpConfig(footprint="adaptive"),
         DepthWarpConfig(footprint="adaptive", resample="nearest", max_footprint=4, depth_edge=0.2),
+        DepthWarpConfig(fill_unseen="layout"),
     ],
-    ids=["default", "splat2-raw", "splat3-inpaint", "v0.1", "adaptive", "adaptive-nearest"],
+    ids=["default", "splat2-raw", "splat3-inpaint", "v0.1", "adaptive", "adaptive-nearest", "layout"],
 )
 def test_meets_the_synthesizer_contract(config):
     check_synthesizer(DepthWarp(config))
     check_synthesizer(DepthWarp(config), make_view(seed=7, size=96, distance=1.2))
 
 
-def test_runs_in_every_order():
-    check_synthesizer_in_all_orders(DepthWarp())
+@pytest.mark.parametrize("config", [DepthWarpConfig(), DepthWarpConfig(fill_unseen="layout")], ids=["default", "layout"])
+def test_runs_in_every_order(config):
+    check_synthesizer_in_all_orders(DepthWarp(config))
 
 
 def test_a_view_without_depth_is_refused():
