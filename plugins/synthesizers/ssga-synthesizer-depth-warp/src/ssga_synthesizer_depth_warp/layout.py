@@ -53,6 +53,17 @@ class Layout:
     """``(_BEARING_BINS,)`` float32: horizontal distance (metres) to the wall at each world bearing."""
 
 
+def _in_wall_band(height: np.ndarray, ceiling: float, wall_band: float) -> np.ndarray:
+    """Which of these heights lie in the band ``wall_band`` metres below the ceiling (above doors and
+    furniture), the ceiling plane itself left out."""
+    return (height > ceiling - wall_band) & (height < ceiling - _SURFACE_TOLERANCE)
+
+
+def _least_points(total: int) -> float:
+    """Fewest points a plane or the band needs, of ``total`` source points (:data:`_MIN_PLANE_SHARE`)."""
+    return max(_MIN_PLANE_SHARE * total, 10)
+
+
 def _source_points(views: Sequence[View], max_depth: float) -> tuple[np.ndarray, np.ndarray]:
     """World points ``(N, 3)`` and their colours ``(N, C)`` of every source pixel (on a stride) with known depth."""
     points, colours = [], []
@@ -74,7 +85,7 @@ def _bearing_bin(dx: np.ndarray, dy: np.ndarray) -> np.ndarray:
 def estimate_layout(points: np.ndarray, target: Pose, wall_band: float) -> Layout | None:
     """The room around ``target`` from the sources' world points; None where they show no ceiling or wall band."""
     height = points[:, 2]
-    least = max(_MIN_PLANE_SHARE * len(points), 10)
+    least = _least_points(len(points))
     above = height[height > target.height + 0.3]
     if len(above) < least:
         return None
@@ -83,7 +94,7 @@ def estimate_layout(points: np.ndarray, target: Pose, wall_band: float) -> Layou
     # A ceiling is an area: the top edge of a wall, all that is high where no ceiling was seen, is a line.
     if len(top) < least or np.sqrt(np.linalg.eigvalsh(np.cov(top.T))[0]) < _MIN_CEILING_WIDTH:
         return None
-    band = points[(height > ceiling - wall_band) & (height < ceiling - _SURFACE_TOLERANCE)]
+    band = points[_in_wall_band(height, ceiling, wall_band)]
     if len(band) < least:
         return None
     dx, dy = band[:, 0] - target.x, band[:, 1] - target.y
@@ -156,20 +167,19 @@ def layout_fill(
     wall_band: float = 0.45,
     cell: float = 0.04,
     max_depth: float = 50.0,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+) -> tuple[np.ndarray, np.ndarray]:
     """Draw the ``holes`` of a target view as the room's floor, walls and ceiling (the module docstring).
 
     Returns:
-        the image, its planar depth (the layout's where filled) and the ``(H, W)`` bool
-        mask of what was filled; the inputs as they were where no layout was found.
+        the image and its planar depth (the layout's where filled); the inputs as they
+        were where no layout was found.
     """
-    none = np.zeros_like(holes)
     if not holes.any():
-        return rgb, depth, none
+        return rgb, depth
     points, colours = _source_points(views, max_depth)
     layout = estimate_layout(points, target, wall_band)
     if layout is None:
-        return rgb, depth, none
+        return rgb, depth
     v, u = np.nonzero(holes)
     f = camera.focal_px
     cx, cy = camera.principal_point
@@ -194,13 +204,13 @@ def layout_fill(
     in_room = np.hypot(dx, dy) <= layout.wall_distance[_bearing_bin(dx, dy)] + _SURFACE_TOLERANCE
     for index, on_plane in ((1, in_room & (height < _SURFACE_TOLERANCE)), (2, in_room & (height > layout.ceiling - _SURFACE_TOLERANCE))):
         pick = surface == index
-        if not pick.any() or np.count_nonzero(on_plane) < max(_MIN_PLANE_SHARE * len(points), 10):
+        if not pick.any() or np.count_nonzero(on_plane) < _least_points(len(points)):
             continue
         colour = _TextureMap(points[on_plane, :2], colours[on_plane], cell).lookup(hit[pick, :2])
         out[v[pick], u[pick]] = colour.reshape(-1, *rgb.shape[2:]).astype(rgb.dtype)
         filled[v[pick], u[pick]] = True
     # Walls: the band's points mapped to (arc length around the target, height), the band tiled up and down.
-    band = (height > layout.ceiling - wall_band) & (height < layout.ceiling - _SURFACE_TOLERANCE)
+    band = _in_wall_band(height, layout.ceiling, wall_band)
     pick = surface == 0
     if pick.any():
         radius = float(np.median(layout.wall_distance))
@@ -212,4 +222,4 @@ def layout_fill(
         out[v[pick], u[pick]] = colour.reshape(-1, *rgb.shape[2:]).astype(rgb.dtype)
         filled[v[pick], u[pick]] = True
     out_depth[filled] = t[filled[v, u]].astype(depth.dtype)
-    return out, out_depth, filled
+    return out, out_depth

@@ -161,7 +161,7 @@ class DepthWarp(Synthesizer):
             unseen = ~warps[0].covered
             if config.fill_holes != "none":
                 unseen &= ~small_holes(warps[0].covered, config.max_hole)
-            rgb, depth, _ = layout_fill(rgb, depth, unseen, camera, target, views, wall_band=config.wall_band, max_depth=config.max_depth)
+            rgb, depth = layout_fill(rgb, depth, unseen, camera, target, views, wall_band=config.wall_band, max_depth=config.max_depth)
         # One synthetic view, the fused render, seen through each source's own point map.
         synthetic = View(rgb=rgb, pose=target, camera=camera, depth=depth, synthetic=True)
         return [Synthesis(view=synthetic, target_uv=w.target_uv, visible=w.visible) for w in warps]
