@@ -224,3 +224,28 @@ def test_bench_summary_over_seeds():
     # 120 test views in 10 s, against 80 views in 4 s of describing on one worker.
     assert "| end to end [test views/s] | 12.00 | 12.00 |" in md and "| describe, one worker [views/s] | 20.0 | 20.0 |" in md
     assert "| end to end / slowest stage on every worker [%] | 60 | 60 |" in md  # one worker
+
+
+def test_the_methods_claims_are_counted_cell_by_cell():
+    from ssga_bench.bench import SeedRun, bench_summary, part_twins
+
+    # Six views of class 0, two per level. The part-based order ranks the truth first at L1 and L2 and second at L3;
+    # its twin without P the other way round. The ensemble is the part-based order; the nearest neighbour the twin.
+    by_rank = {1: [3.0, 2.0, 1.0], 2: [2.0, 3.0, 1.0]}
+    parts = np.array([by_rank[r] for r in (1, 1, 1, 1, 2, 2)])
+    whole = np.array([by_rank[r] for r in (2, 2, 2, 2, 1, 1)])
+    truth = np.zeros(6, np.int64)
+    groups = level_groups(np.repeat([1, 2, 3], 2))
+    report = Report.build(
+        "ws", {"SIFT-SL (PDS)": parts, "SIFT (DS)": whole, "SIFT (D)": whole}, truth, groups=groups, num_classes=3,
+        ensemble=("Ensemble (RRF)", parts), references={"nearest neighbour (SIFT (DS))": whole},
+    )  # fmt: skip
+    assert report.nearest_neighbour == "nearest neighbour (SIFT (DS))"
+    assert part_twins(report.variants) == [("SIFT-SL (PDS)", "SIFT (DS)")]
+    md = bench_summary({0: SeedRun(report, {}, 1.0)})
+    assert "| seed | level | ensemble − nearest neighbour | ensemble − its best variant there | SIFT-SL (PDS) − SIFT (DS) |" in md
+    assert "| 0 | L1 | +50.0 better | +0.0 tie (SIFT-SL (PDS)) | +50.0 better |" in md
+    assert "| 0 | L3 | -50.0 worse | -50.0 worse (SIFT (DS)) | -50.0 worse |" in md
+    assert "- the ensemble 2 points or more above the nearest neighbour: 2 of 3 (seed, level) cells" in md
+    assert "- the ensemble at or above every single variant: 2 of 3 (2 not below one beyond its interval)" in md
+    assert "- each part-based variant above its twin without P at L2 and L3: 1 of 2 cells" in md

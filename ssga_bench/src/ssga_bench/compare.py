@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from ssga_bench.evaluation import LEVELS, METRIC_TITLES, METRICS, Estimate, difference_text, mean_interval, per_query, seeds_estimate
+from ssga_bench.evaluation import LEVELS, METRIC_TITLES, METRICS, NEAREST, Estimate, difference_text, mean_interval, per_query, seeds_estimate
 from ssga_bench.queries import load_predictions
 from ssga_core import InputError
 
@@ -37,8 +37,6 @@ def prediction_files(output: Path) -> dict[str, Path]:
 
 ENSEMBLE = "ensemble"
 """The name that stands for a run's ensemble row, whose label may name the members each seed chose."""
-NEAREST = "nearest neighbour"
-"""The name that stands for the nearest-neighbour row, whose label names the best single variant of each seed."""
 
 
 def row_label(records: list[dict[str, Any]], name: str, where: str) -> str:

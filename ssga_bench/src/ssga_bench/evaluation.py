@@ -209,6 +209,9 @@ def difference_text(difference: Estimate) -> str:
 
 Kind = Literal["variant", "ensemble", "best single", "reference", "random"]
 
+NEAREST = "nearest neighbour"
+"""The nearest-neighbour reference row's name; its label adds the variant whose features it uses, ``nearest neighbour (SIFT (SD))``."""
+
 
 @dataclass(frozen=True)
 class Row:
@@ -356,9 +359,19 @@ class Report:
 
     def compare(self, member: str, group: str = "all", metric: str = "mrr") -> Estimate:
         """The ensemble minus ``member`` on the same queries, in percentage points, with a paired interval."""
+        return self.difference(self.ensemble, member, group, metric)
+
+    def difference(self, row: str, other: str, group: str = "all", metric: str = "mrr") -> Estimate:
+        """``row`` minus ``other`` on the same queries, in percentage points, with a paired interval."""
         mask = self.masks[group]
-        ens, other = (per_query(self.true_ranks[label][mask], metric) for label in (self.ensemble, member))
-        return mean_interval(ens - other)
+        a, b = (per_query(self.true_ranks[label][mask], metric) for label in (row, other))
+        return mean_interval(a - b)
+
+    @property
+    def nearest_neighbour(self) -> str | None:
+        """The nearest-neighbour reference row (the whole image's features, no classifier), if it was scored."""
+        found = [label for label, row in self.rows.items() if row.kind == "reference" and row.label.startswith(NEAREST + " (")]
+        return found[0] if found else None
 
     # -- what a choice among the variants could reach ------------------------------------------
     # These read the test labels: they say how much a fusion of these variants could gain, never

@@ -13,7 +13,7 @@ import numpy as np
 
 from ssga_bench.config import Experiment
 from ssga_bench.dataset import Dataset
-from ssga_bench.evaluation import truth_ranks
+from ssga_bench.evaluation import NEAREST, truth_ranks
 from ssga_bench.io import write_json
 from ssga_bench.timings import Timings
 from ssga_bench.variant_training import VariantResult
@@ -136,8 +136,8 @@ def fuse_variants(
     else:  # a rerun with no learned rule leaves no stale weights
         (out / "fusion.json").unlink(missing_ok=True)
     reference_variant = best_single or labels[0]
-    references[f"nearest neighbour ({reference_variant})"] = results[reference_variant].nearest
-    series[f"nearest neighbour ({reference_variant})"] = "nearest neighbour (best single)"
+    references[f"{NEAREST} ({reference_variant})"] = results[reference_variant].nearest
+    series[f"{NEAREST} ({reference_variant})"] = f"{NEAREST} (best single)"
 
     for label in labels:  # the config's order, whichever finished first
         if label in oracle_results:
