@@ -248,4 +248,4 @@ def test_the_methods_claims_are_counted_cell_by_cell():
     assert "| 0 | L3 | -50.0 worse | -50.0 worse (SIFT (DS)) | -50.0 worse |" in md
     assert "- the ensemble 2 points or more above the nearest neighbour: 2 of 3 (seed, level) cells" in md
     assert "- the ensemble at or above every single variant: 2 of 3 (2 not below one beyond its interval)" in md
-    assert "- each part-based variant above its twin without P at L2 and L3: 1 of 2 cells" in md
+    assert "- each part-based variant above its twin without P at L2 and L3: SIFT-SL (PDS) − SIFT (DS) 1 of 2" in md

@@ -181,9 +181,11 @@ def _claims_lines(runs: dict[int, SeedRun], groups: Sequence[str] = ("L1", "L2",
     part-based variant against its twin without P; then how many cells hold each claim."""
     seeds = sorted(runs)
     pairs = list(dict.fromkeys(p for s in seeds for p in part_twins(runs[s].report.variants)))
-    head = "| seed | level | ensemble − nearest neighbour | ensemble − its best variant there | " + " | ".join(f"{a} − {b}" for a, b in pairs) + " |"
-    lines = [head, "|---|---|" + "---:|" * (2 + len(pairs))]
-    lead = above = not_below = cells = parts_up = parts_cells = 0
+    columns = ["seed", "level", "ensemble − nearest neighbour", "ensemble − its best variant there", *(f"{a} − {b}" for a, b in pairs)]
+    lines = ["| " + " | ".join(columns) + " |", "|---|---|" + "---:|" * (len(columns) - 2)]
+    lead = above = not_below = cells = 0
+    parts_up = dict.fromkeys(pairs, 0)
+    parts_cells = dict.fromkeys(pairs, 0)
     for s in seeds:
         report = runs[s].report
         nearest = report.nearest_neighbour
@@ -209,8 +211,8 @@ def _claims_lines(runs: dict[int, SeedRun], groups: Sequence[str] = ("L1", "L2",
                     continue
                 d = report.difference(a, b, g)
                 if g in PART_LEVELS:
-                    parts_cells += 1
-                    parts_up += d.value > 0
+                    parts_cells[a, b] += 1
+                    parts_up[a, b] += d.value > 0
                 row.append(difference_text(d))
             lines.append("| " + " | ".join(row) + " |")
     lines += [
@@ -218,7 +220,8 @@ def _claims_lines(runs: dict[int, SeedRun], groups: Sequence[str] = ("L1", "L2",
         f"- the ensemble {NEAREST_LEAD:g} points or more above the nearest neighbour: {lead} of {cells} (seed, level) cells"
         + ("" if any(runs[s].report.nearest_neighbour for s in seeds) else " (no nearest-neighbour row)"),
         f"- the ensemble at or above every single variant: {above} of {cells} ({not_below} not below one beyond its interval)",
-        f"- each part-based variant above its twin without P at {' and '.join(PART_LEVELS)}: {parts_up} of {parts_cells} cells",
+        f"- each part-based variant above its twin without P at {' and '.join(PART_LEVELS)}: "
+        + ("; ".join(f"{a} − {b} {parts_up[a, b]} of {parts_cells[a, b]}" for a, b in pairs) or "no twins"),
     ]
     return lines
 
