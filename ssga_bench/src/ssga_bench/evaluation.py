@@ -369,7 +369,8 @@ class Report:
 
     @property
     def nearest_neighbour(self) -> str | None:
-        """The nearest-neighbour reference row (the whole image's features, no classifier), if it was scored."""
+        """The nearest-neighbour reference row (the best single variant's whole image, matched to the nearest training
+        graph), if it was scored."""
         found = [label for label, row in self.rows.items() if row.kind == "reference" and row.label.startswith(NEAREST + " (")]
         return found[0] if found else None
 
