@@ -8,6 +8,8 @@ patches on a 12 x 12 grid whose columns sit at u = 10.17, 31.5, 52.8, ...
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -239,6 +241,36 @@ def test_holes_skip_describes_only_what_the_synthesizer_drew(view):
     np.testing.assert_allclose(skip_graph.features[0], every.descriptors[drawn].mean(axis=0), rtol=1e-6)
     # The hole is black: describing it darkens the whole image's feature.
     assert (skip_graph.features[0] > keep_graph.features[0]).all()
+
+
+class FillingShift(ShiftWarp):
+    """ShiftWarp that draws its hole (the columns no source pixel reached) as a grey wall 3 m away."""
+
+    def _synthesize(self, view, target):
+        syn = super()._synthesize(view, target)
+        hole = ~syn.view.valid_depth()
+        rgb, depth = syn.view.rgb.copy(), syn.view.depth.copy()
+        rgb[hole], depth[hole] = 128, 3.0
+        return dataclasses.replace(syn, view=dataclasses.replace(syn.view, rgb=rgb, depth=depth))
+
+
+def test_parse_invented_makes_parts_of_what_s_drew_where_no_part_landed(view):
+    # 0.6 m to the right: content moves 25.6 px left and FillingShift draws columns 230-255. Of the
+    # synthetic view's 32 px stripes, the last (224-255) lies 26/32 in them: a part, cut to 230-255.
+    # Its one column of patches (u = 244.8) describes it; the carried parts are as without the option.
+    target = target_right(view, 0.6)
+    plain = dataclasses.replace(bind("PSD", stripes=8), synthesizer=FillingShift())
+    inventing = dataclasses.replace(plain, parse_invented=True)
+    before, after = build_graph(plain, view, target), build_graph(inventing, view, target)
+    assert after.num_nodes == before.num_nodes + 1
+    np.testing.assert_array_equal(after.boxes[1:-1], before.boxes[1:])
+    np.testing.assert_array_equal(after.boxes[-1], [230, 0, 255, 255])
+    local = PatchColour().extract(FillingShift().synthesize(view, target).view)
+    np.testing.assert_allclose(after.features[-1], local.descriptors[local.positions[:, 0] > 230].mean(axis=0), rtol=1e-6)
+    np.testing.assert_allclose(after.features[:-1], before.features)
+    # Described before S, nothing describes the invented pixels: PDS is as without the option.
+    pds = dataclasses.replace(plain, variant=parse_variant("PDS"))
+    np.testing.assert_array_equal(build_graph(dataclasses.replace(pds, parse_invented=True), view, target).features, build_graph(pds, view, target).features)
 
 
 def test_a_synthetic_views_graph_records_where_it_was_drawn(view):

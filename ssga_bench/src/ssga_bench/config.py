@@ -171,6 +171,12 @@ class TrainingConfig(Strict):
         le=1.0,
         description="sources = 'seen': another cell's real view joins if it sees at least this share of the floor the pseudo-view sees.",
     )
+    parse_invented: bool = Field(
+        default=False,
+        description="An order that parses before S and describes after it (PSD) also parses what the synthesizer drew where "
+        "no real view's part landed (a room it filled in), and adds those regions as parts; false: those pixels belong "
+        "to no part, the paper's reading (ssga_core.pipeline).",
+    )
     real_for_every_class: bool = Field(
         default=True,
         description="Variants without S train each class of a cell on the cell's real graph (the paper: they 'simply use "

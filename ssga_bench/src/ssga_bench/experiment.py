@@ -368,7 +368,9 @@ def _train_variants(
     built = {n: dict(prepared[n].fitting) for n in synthesizing}  # the pseudo-views each descriptor was fitted on
     fitting = set(fitting_pseudo_views(plan.cells, plan.pseudo))
     rest = [i for i in range(len(plan.pseudo)) if i not in fitting] if synthesizing else []
-    fitted = tuple(FittedVariant(todo[n].variant, todo[n].folder, prepared[n].key, todo[n].oracle) for n in synthesizing)
+    fitted = tuple(
+        FittedVariant(todo[n].variant, todo[n].folder, prepared[n].key, todo[n].oracle, todo[n].training.parse_invented) for n in synthesizing
+    )
     jobs = [PseudoChunk(root, cache_folder, fitted, tuple((i, plan.pseudo[i]) for i in part)) for part in chunks(rest, PSEUDO_CHUNK)]
     for job, out in zip(jobs, executor.map(pseudo_graphs, jobs, describe=PseudoChunk.what, progress=bar("training graphs"))):
         timings.add(out.timings)

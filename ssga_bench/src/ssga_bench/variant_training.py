@@ -279,7 +279,7 @@ def prepare_variant(job: VariantJob) -> PrepareOutcome:
     try:
         # Every stage runs here (a learned one may load its checkpoint only when first used),
         # so a missing checkpoint shows here, not in the chunks.
-        bound = _bind(job.variant, job.oracle)
+        bound = _bind(job.variant, job.oracle, job.training.parse_invented)
         instrument(bound, timings)
         first = fit_training_descriptor(bound, plan.cells, plan.pseudo)
         graphs, labels = real_training_graphs(bound, plan.cells, real_for_every_class=job.training.real_for_every_class, memo=cache)
@@ -290,21 +290,23 @@ def prepare_variant(job: VariantJob) -> PrepareOutcome:
     return PrepareOutcome(None, Prepared(key, bound.label, graphs, labels, fitting), "", timings)
 
 
-def _bind(variant: ResolvedVariant, oracle: ResolvedStage | None) -> BoundVariant:
+def _bind(variant: ResolvedVariant, oracle: ResolvedStage | None, parse_invented: bool = False) -> BoundVariant:
     """The variant's stages; the oracle's true renders in place of its synthesizer."""
     from ssga_bench.tasks import opened_workspace
 
-    bound = variant.bind()
+    bound = dataclasses.replace(variant.bind(), parse_invented=parse_invented)
     if oracle is not None:
         synthesizer = TrueRender(opened_workspace(oracle))
         bound = dataclasses.replace(bound, synthesizer=synthesizer, label=f"{bound.label} on {synthesizer.name}s")
     return bound
 
 
-def fitted_stages(variant: ResolvedVariant, folder: str | Path, oracle: ResolvedStage | None = None) -> BoundVariant:
+def fitted_stages(
+    variant: ResolvedVariant, folder: str | Path, oracle: ResolvedStage | None = None, parse_invented: bool = False
+) -> BoundVariant:
     """The variant's stages in another process, its descriptor as fitted: the state
     :func:`prepare_variant` left in ``folder / "descriptor.npz"``."""
-    bound = _bind(variant, oracle)
+    bound = _bind(variant, oracle, parse_invented)
     bound.descriptor.load_state_dict(load_npz(Path(folder) / "descriptor.npz"))
     return bound
 
@@ -325,6 +327,7 @@ class FittedVariant:
     folder: str
     key: str
     oracle: ResolvedStage | None
+    parse_invented: bool = False
 
 
 @dataclass(frozen=True)
@@ -367,7 +370,7 @@ def pseudo_graphs(chunk: PseudoChunk) -> ChunkGraphs:
         timings = Timings()
         bounds = []
         for v in chunk.variants:
-            bound = fitted_stages(v.variant, v.folder, v.oracle)
+            bound = fitted_stages(v.variant, v.folder, v.oracle, v.parse_invented)
             instrument(bound, timings)
             bounds.append(bound)
         return timings, bounds

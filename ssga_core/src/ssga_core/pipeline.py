@@ -19,7 +19,12 @@ has been parsed and described of it so far.
     image are dropped. If regions were parsed before S, each feature keeps the node
     it belonged to in the real image;
   - semantic/instance ids of the real view are warped too, so ground-truth parsers
-    can parse synthetic views.
+    can parse synthetic views;
+  - what S drew where no source's part landed (a room's walls that no real view saw,
+    filled in by the synthesizer) belongs to no part: the paper's reading. With
+    ``parse_invented``, an order that parsed before S and describes after it (PSD) parses
+    the synthetic view too and adds, as parts, its regions that lie at least half in
+    those pixels (cut to them); the carried parts stay as they were.
 
 At the end the graph is assembled: node 0 is the whole image (all local features, or
 the region descriptor's image feature), nodes 1..K the surviving parts; a part with no
@@ -87,6 +92,9 @@ class BoundVariant:
     parser: Parser | None = None
     synthesizer: Synthesizer | None = None
     label: str = ""
+    parse_invented: bool = False
+    """An order that parses before S and describes after it (PSD) also parses what S invented:
+    see the module docstring. Off: the paper's reading, where those pixels belong to no part."""
 
     def __post_init__(self) -> None:
         bound = {kind: type(stage) if (stage := getattr(self, kind)) is not None else None for kind in PIPELINE_KIND_NAMES}
@@ -148,6 +156,8 @@ def build_graph(
             for state, syn in zip(states, syntheses, strict=True):
                 state.synthesize(syn)
             states = [_join(states)]
+            if bound.parse_invented and bound.parser is not None:
+                states[0].parse_invented(bound.parser)
             continue
         for state in states:
             if stage == "P":
@@ -357,6 +367,26 @@ class _State:
 
     def parse(self, parser: Parser) -> None:
         self.regions = self.memo.regions(parser, self.view) if self.memo else parser.parse(self.view)
+
+    def parse_invented(self, parser: Parser) -> None:
+        """Add parts for the drawn pixels no carried part covers (the module docstring); only
+        while nothing is described yet, since a part needs features of its own pixels."""
+        if self.regions is None or self.local is not None or self.region_features is not None:
+            return
+        carried = self.regions
+        invented = self.view.valid_depth() & (carried.labels < 0)
+        if not invented.any():
+            return
+        fresh = self.memo.regions(parser, self.view) if self.memo else parser.parse(self.view)
+        labelled = fresh.labels >= 0
+        area = np.bincount(fresh.labels[labelled], minlength=len(fresh))
+        inside = np.bincount(fresh.labels[labelled & invented], minlength=len(fresh))
+        # Mostly invented, so a region that is mainly carried content does not come back as a sliver.
+        mostly = np.append((inside > 0) & (2 * inside >= area), False)
+        taken = invented & mostly[np.where(labelled, fresh.labels, -1)]
+        added = Regions.from_labels(np.where(taken, fresh.labels, -1), fresh.categories)
+        labels = np.where(added.labels >= 0, added.labels + len(carried), carried.labels).astype(np.int32)
+        self.regions = Regions.concatenate([carried, added], labels)
 
     def describe(self, descriptor: Descriptor) -> None:
         if isinstance(descriptor, LocalDescriptor):
