@@ -23,12 +23,12 @@ def dataset(tmp_path_factory):
     return build_dataset(WallWorkspaceSource().open(), out, source={"name": "test-wall"}, protocol=ProtocolConfig(cells=2, test_per_class=2, seed=4))
 
 
-def experiment(stand_in_registry, **training):
+def experiment(stand_in_registry, variants=("PDS", "PD", "SD"), **training):
     return validate_experiment(
         {
             "workspace": {"name": "test-wall"},
             "stages": {"parser": {"name": "test-stripes"}, "descriptor": {"name": "test-patch-colour"}, "synthesizer": {"name": "test-shift"}},
-            "variants": ["PDS", "PD", "SD"],
+            "variants": list(variants),
             "fuser": {"name": "rrf"},
             "training": {"epochs": 3, "hidden": 16, **training},
         },
@@ -114,6 +114,17 @@ def test_runs_fuses_reports_and_resumes(tmp_path, dataset, stand_in_registry, mo
     monkeypatch.setattr("ssga_bench.variant_training.train_gcn", no_training)
     with pytest.raises(AssertionError, match="trained again"):
         run_experiment(experiment(stand_in_registry, seed=1), dataset, tmp_path)
+
+
+def test_parse_invented_retrains_only_the_orders_whose_parts_it_can_change(tmp_path, dataset, stand_in_registry):
+    def keys(**training):
+        run_experiment(experiment(stand_in_registry, ("PSD", "SD", "PDS"), **training), dataset, tmp_path)
+        return {d.name: json.loads((d / "training.json").read_text())["key"] for d in (tmp_path / "variants").iterdir()}
+
+    before, after = keys(), keys(parse_invented=True)
+    assert set(before) == {"PC-ST_PSD", "PC_SD", "PC-ST_PDS"}
+    assert before["PC-ST_PSD"] != after["PC-ST_PSD"]
+    assert {k: v for k, v in before.items() if k != "PC-ST_PSD"} == {k: v for k, v in after.items() if k != "PC-ST_PSD"}
 
 
 def test_an_interrupted_scoring_resumes_with_the_chunks_it_had_not_scored(tmp_path, dataset, stand_in_registry, monkeypatch):

@@ -106,6 +106,11 @@ def test_queries_are_parsed_and_described_without_synthesis(variant, query):
     assert parse_variant(variant).query_order == query
 
 
+def test_only_orders_that_parse_before_s_and_describe_after_it_describe_carried_parts():
+    carried = [order for order in all_orders() if parse_variant(order).describes_carried_parts]
+    assert carried == ["PSD"]
+
+
 def test_requirements_follow_the_order():
     assert requirements("SPD") == {"parser": {}, "descriptor": {}, "synthesizer": {}}
     assert set(requirements("DSP")["descriptor"]) == {Data.LOCAL_FEATURES}

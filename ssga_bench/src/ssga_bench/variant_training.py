@@ -94,7 +94,8 @@ def variant_key(rv: ResolvedVariant, training: TrainingConfig, dataset: Dataset,
         "extra": extra,
         "variant": str(rv.variant),
         "stages": {k: [s.cls.name, s.config.model_dump(mode="json")] for k, s in sorted(rv.stages.items())},
-        "training": training.model_dump(mode="json"),
+        # A setting that cannot change the variant's graphs stays out, so that trying it reuses the others.
+        "training": training.model_dump(mode="json", exclude=None if rv.variant.describes_carried_parts else {"parse_invented"}),
         "dataset": dataset.header,
         "plan": hashlib.blake2b((dataset.root / "plan.json").read_bytes(), digest_size=8).hexdigest(),
     }

@@ -22,9 +22,10 @@ has been parsed and described of it so far.
     can parse synthetic views;
   - what S drew where no source's part landed (a room's walls that no real view saw,
     filled in by the synthesizer) belongs to no part: the paper's reading. With
-    ``parse_invented``, an order that parsed before S and describes after it (PSD) parses
-    the synthetic view too and adds, as parts, its regions that lie at least half in
-    those pixels (cut to them); the carried parts stay as they were.
+    ``parse_invented``, an order that parses before S and describes after it (PSD,
+    ``Variant.describes_carried_parts``) parses the synthetic view too and adds, as parts,
+    its regions that lie at least half in those pixels (cut to them); the carried parts
+    stay as they were.
 
 At the end the graph is assembled: node 0 is the whole image (all local features, or
 the region descriptor's image feature), nodes 1..K the surviving parts; a part with no
@@ -156,7 +157,8 @@ def build_graph(
             for state, syn in zip(states, syntheses, strict=True):
                 state.synthesize(syn)
             states = [_join(states)]
-            if bound.parse_invented and bound.parser is not None:
+            if bound.parse_invented and bound.variant.describes_carried_parts:
+                assert bound.parser is not None
                 states[0].parse_invented(bound.parser)
             continue
         for state in states:
@@ -369,10 +371,8 @@ class _State:
         self.regions = self.memo.regions(parser, self.view) if self.memo else parser.parse(self.view)
 
     def parse_invented(self, parser: Parser) -> None:
-        """Add parts for the drawn pixels no carried part covers (the module docstring); only
-        while nothing is described yet, since a part needs features of its own pixels."""
-        if self.regions is None or self.local is not None or self.region_features is not None:
-            return
+        """Add parts for the drawn pixels no carried part covers (the module docstring)."""
+        assert self.regions is not None and self.local is None and self.region_features is None
         carried = self.regions
         invented = self.view.valid_depth() & (carried.labels < 0)
         if not invented.any():

@@ -72,6 +72,14 @@ class Variant:
     def synthesizes(self) -> bool:
         return "S" in self.order
 
+    @property
+    def describes_carried_parts(self) -> bool:
+        """Parses before S and describes after it (PSD): the parts are carried through synthesis and
+        described on the synthetic view, so they are the only ones that can take in what S drew
+        where no part landed (``BoundVariant.parse_invented``)."""
+        o = self.order
+        return all(c in o for c in "PSD") and o.index("P") < o.index("S") < o.index("D")
+
     def kinds(self) -> list[str]:
         """The stage kinds this variant binds, in order of execution."""
         return [STAGE_KINDS[s] for s in self.order]
