@@ -226,6 +226,15 @@ def test_bench_summary_over_seeds():
     assert "| end to end / slowest stage on every worker [%] | 60 | 60 |" in md  # one worker
 
 
+def test_a_numbered_variant_pairs_with_its_numbered_twin_or_else_the_plain_order():
+    from ssga_bench.bench import part_twins
+
+    labels = ["P-SL (SPD1)", "P-SL (SPD2)", "P-SL (PSD)", "P-SE (PSD)", "P (SD)", "P (SD2)", "P (DS)", "P-SL (PD)"]
+    assert part_twins(labels) == [
+        ("P-SL (SPD1)", "P (SD)"), ("P-SL (SPD2)", "P (SD2)"), ("P-SL (PSD)", "P (SD)"), ("P-SE (PSD)", "P (SD)"),
+    ]  # fmt: skip
+
+
 def test_the_methods_claims_are_counted_cell_by_cell():
     from ssga_bench.bench import SeedRun, bench_summary, part_twins
 

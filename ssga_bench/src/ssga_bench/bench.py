@@ -159,7 +159,9 @@ def _ensemble_lines(runs: dict[int, SeedRun], groups: Sequence[str] = ("L2", "L3
 
 def part_twins(labels: Sequence[str]) -> list[tuple[str, str]]:
     """Each part-based variant among ``labels`` with its twin: the same order without P, on the same descriptor
-    (``SIFT-SL (PDS)`` and ``SIFT (DS)``, as :func:`ssga_core.pipeline.table_label` names them), where both are there."""
+    (``SIFT-SL (PDS)`` and ``SIFT (DS)``, as :func:`ssga_core.pipeline.table_label` names them), where both are there.
+    A preset number pairs with the twin of the same number, else with the plain order (``P-SL (SPD1)`` with ``P
+    (SD)``): a preset's numbered variants usually differ in S's settings, which its twin without P need not repeat."""
     twins = []
     for label in labels:
         head, _, rest = label.rpartition(" (")
@@ -169,9 +171,12 @@ def part_twins(labels: Sequence[str]) -> list[tuple[str, str]]:
             continue
         if "P" not in variant.order or "-" not in head:
             continue
-        twin = f"{head.rpartition('-')[0]} ({replace(variant, order=variant.order.replace('P', ''))})"
-        if twin in labels:
-            twins.append((label, twin))
+        without_parts = replace(variant, order=variant.order.replace("P", ""))
+        for candidate in dict.fromkeys((without_parts, replace(without_parts, preset=None))):
+            twin = f"{head.rpartition('-')[0]} ({candidate})"
+            if twin in labels:
+                twins.append((label, twin))
+                break
     return twins
 
 
