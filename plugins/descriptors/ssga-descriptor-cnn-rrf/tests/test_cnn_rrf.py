@@ -194,8 +194,12 @@ def test_a_second_fit_loads_the_cached_classifier(tmp_path, monkeypatch):
     again = tiny(tmp_path, steps=5, device="cpu", describe_batch=2)  # runtime fields: same key
     again.fit(views, labels)
     assert again.training is None and again.cache_file == first.cache_file
-    view, regions, _ = quadrants()
-    np.testing.assert_array_equal(again.describe(view, regions), first.describe(view, regions))
+    trained = first._fitted().state_dict()  # the weights come back exactly, wherever the first fit ran
+    loaded = again._fitted().state_dict()
+    assert trained.keys() == loaded.keys() and all(torch.equal(trained[k].cpu(), loaded[k].cpu()) for k in trained)
+    if first.device == again.device:  # a CUDA-trained first describes with other rounding than the CPU, which can flip a rank
+        view, regions, _ = quadrants()
+        np.testing.assert_array_equal(again.describe(view, regions), first.describe(view, regions))
 
 
 @pytest.mark.parametrize("change", ["config", "image", "labels"])
