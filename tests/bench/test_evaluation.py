@@ -247,9 +247,11 @@ def test_the_methods_claims_are_counted_cell_by_cell():
     groups = level_groups(np.repeat([1, 2, 3], 2))
     report = Report.build(
         "ws", {"SIFT-SL (PDS)": parts, "SIFT (DS)": whole, "SIFT (D)": whole}, truth, groups=groups, num_classes=3,
-        ensemble=("Ensemble (RRF)", parts), references={"nearest neighbour (SIFT (DS))": whole},
+        ensemble=("Ensemble (RRF)", parts),
+    references={"nearest neighbour (SIFT (DS))": whole, "Ensemble (STK) of all, learned on validation": whole},
     )  # fmt: skip
     assert report.nearest_neighbour == "nearest neighbour (SIFT (DS))"
+    assert report.fused == ["Ensemble (RRF)", "Ensemble (STK) of all, learned on validation"]
     assert part_twins(report.variants) == [("SIFT-SL (PDS)", "SIFT (DS)")]
     md = bench_summary({0: SeedRun(report, {}, 1.0)})
     assert "| seed | level | ensemble − nearest neighbour | ensemble − its best variant there | SIFT-SL (PDS) − SIFT (DS) |" in md
@@ -258,3 +260,7 @@ def test_the_methods_claims_are_counted_cell_by_cell():
     assert "- the ensemble 2 points or more above the nearest neighbour: 2 of 3 (seed, level) cells" in md
     assert "- the ensemble at or above every single variant: 2 of 3 (2 not below one beyond its interval)" in md
     assert "- each part-based variant above its twin without P at L2 and L3: SIFT-SL (PDS) − SIFT (DS) 1 of 2" in md
+    # The bar per level is the higher of the best variant (100 / 100 / 100) and the nearest neighbour + 2 (52 / 52 / 102):
+    # the ensemble (100 / 100 / 50) is 0 / 0 / -52 off it, the stacked row (the whole image, 50 / 50 / 100) -50 / -50 / -2.
+    assert "| **Ensemble (RRF)** (the ensemble row) | 3 | 2 | -17.33 |" in md
+    assert "| Ensemble (STK) of all, learned on validation | 3 | 1 | -34.00 |" in md

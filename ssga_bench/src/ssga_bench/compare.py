@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from ssga_bench.evaluation import LEVELS, METRIC_TITLES, METRICS, NEAREST, Estimate, difference_text, mean_interval, per_query, seeds_estimate
+from ssga_bench.evaluation import FUSED, LEVELS, METRIC_TITLES, METRICS, NEAREST, Estimate, difference_text, mean_interval, per_query, seeds_estimate
 from ssga_bench.queries import load_predictions
 from ssga_core import InputError
 
@@ -47,7 +47,7 @@ def row_label(records: list[dict[str, Any]], name: str, where: str) -> str:
     if name == ENSEMBLE:
         marked = [label for label, entry in entries.items() if entry.get("ensemble")]
         # Predictions written before the mark hold one ``Ensemble (...)`` row, the ensemble's.
-        found = marked or [label for label in entries if label.startswith("Ensemble (")]
+        found = marked or [label for label in entries if label.startswith(FUSED + " (")]
     elif name == NEAREST:
         found = [label for label in entries if label.startswith(NEAREST + " (")]
     else:

@@ -211,6 +211,13 @@ Kind = Literal["variant", "ensemble", "best single", "reference", "random"]
 
 NEAREST = "nearest neighbour"
 """The nearest-neighbour reference row's name; its label adds the variant whose features it uses, ``nearest neighbour (SIFT (SD))``."""
+FUSED = "Ensemble"
+"""How every fused row's label begins, ``Ensemble (<fuser tag>)``: the ensemble row and the fusion rules reported beside it."""
+
+
+def fused_label(tag: str) -> str:
+    """The label a fused row begins with, for a fuser's tag (``Ensemble (RRF)``)."""
+    return f"{FUSED} ({tag})"
 
 
 @dataclass(frozen=True)
@@ -366,6 +373,11 @@ class Report:
         mask = self.masks[group]
         a, b = (per_query(self.true_ranks[label][mask], metric) for label in (row, other))
         return mean_interval(a - b)
+
+    @property
+    def fused(self) -> list[str]:
+        """The ensemble row, then the fusion rules reported beside it."""
+        return [self.ensemble] + [label for label in self.labels("reference") if label.startswith(FUSED + " (")]
 
     @property
     def nearest_neighbour(self) -> str | None:

@@ -13,7 +13,7 @@ import numpy as np
 
 from ssga_bench.config import Experiment
 from ssga_bench.dataset import Dataset
-from ssga_bench.evaluation import NEAREST, truth_ranks
+from ssga_bench.evaluation import NEAREST, fused_label, truth_ranks
 from ssga_bench.io import write_json
 from ssga_bench.timings import Timings
 from ssga_bench.variant_training import VariantResult
@@ -96,20 +96,20 @@ def fuse_variants(
             if not len(vals):
                 raise SsgaError(f"fuser {rule.name!r} is learned on the validation views, but the workspace has none (protocol.val_per_class)")
             rule.fit(np.stack([results[label].val for label in members]), val_truth)
-            learned[f"Ensemble ({rule.tag()})"] = {"members": members, **rule.learned()}
+            learned[fused_label(rule.tag())] = {"members": members, **rule.learned()}
         return rule.fuse(np.stack([results[label].test for label in members]))
 
     def over_chosen(rule: Fuser) -> tuple[str, np.ndarray]:
         """``rule`` over the members forward selection picks for it on the validation views: its row."""
         members = choose_members(val_scores, val_truth, rule, val_levels)
         how = "chosen on validation, each level equal" if by_level else "chosen on validation"
-        label = f"Ensemble ({rule.tag()}) of {len(members)} {how}: " + ", ".join(members)
-        series[label] = f"Ensemble ({rule.tag()}) {how}"
+        label = f"{fused_label(rule.tag())} of {len(members)} {how}: " + ", ".join(members)
+        series[label] = f"{fused_label(rule.tag())} {how}"
         return label, fused(rule, members)
 
     if len(vals):
         best_single = max(labels, key=lambda label: float(np.mean(1.0 / truth_ranks(val_scores[label], val_truth))))
-    ensemble_label = f"Ensemble ({fuser.tag()})"
+    ensemble_label = fused_label(fuser.tag())
     with timings.phase("evaluate"):
         fused_all = fused(fuser, labels)
         # A rule that learns weighs its members itself (config validation says so); any other is
@@ -126,9 +126,9 @@ def fuse_variants(
         rule = also.create()
         assert isinstance(rule, Fuser)
         with timings.phase("evaluate"):
-            label = f"Ensemble ({rule.tag()}) of all" + (", learned on validation" if rule.learns else "")
+            label = f"{fused_label(rule.tag())} of all" + (", learned on validation" if rule.learns else "")
             references[label] = fused(rule, labels)
-            series[label] = f"Ensemble ({rule.tag()})"
+            series[label] = fused_label(rule.tag())
             if len(vals) and not rule.learns:
                 references.update([over_chosen(rule)])
     if learned:
