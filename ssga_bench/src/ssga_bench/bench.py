@@ -239,6 +239,7 @@ def _fused_rows_lines(runs: dict[int, SeedRun], groups: Sequence[str] = ("L1", "
     ensemble_keys = set()
     for s in sorted(runs):
         report = runs[s].report
+        nearest = report.nearest_neighbour
         ensemble_keys.add(report.rows[report.ensemble].key)
         for g in groups:
             if not report.counts.get(g) or not report.variants:
@@ -248,7 +249,6 @@ def _fused_rows_lines(runs: dict[int, SeedRun], groups: Sequence[str] = ("L1", "
                 return report.rows[label].stats[g]["mrr"].value
 
             best = max(mrr(v) for v in report.variants)
-            nearest = report.nearest_neighbour
             bar = max(best, mrr(nearest) + NEAREST_LEAD) if nearest is not None else best
             for label in report.fused:
                 key = report.rows[label].key
