@@ -248,7 +248,7 @@ def test_the_methods_claims_are_counted_cell_by_cell():
     report = Report.build(
         "ws", {"SIFT-SL (PDS)": parts, "SIFT (DS)": whole, "SIFT (D)": whole}, truth, groups=groups, num_classes=3,
         ensemble=("Ensemble (RRF)", parts),
-    references={"nearest neighbour (SIFT (DS))": whole, "Ensemble (STK) of all, learned on validation": whole},
+        references={"nearest neighbour (SIFT (DS))": whole, "Ensemble (STK) of all, learned on validation": whole},
     )  # fmt: skip
     assert report.nearest_neighbour == "nearest neighbour (SIFT (DS))"
     assert report.fused == ["Ensemble (RRF)", "Ensemble (STK) of all, learned on validation"]

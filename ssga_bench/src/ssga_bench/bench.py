@@ -239,21 +239,18 @@ def _fused_rows_lines(runs: dict[int, SeedRun], groups: Sequence[str] = ("L1", "
     ensemble_keys = set()
     for s in sorted(runs):
         report = runs[s].report
-        nearest = report.nearest_neighbour
+        nearest, table = report.nearest_neighbour, report.table
         ensemble_keys.add(report.rows[report.ensemble].key)
         for g in groups:
             if not report.counts.get(g) or not report.variants:
                 continue
-
-            def mrr(label: str) -> float:
-                return report.rows[label].stats[g]["mrr"].value
-
-            best = max(mrr(v) for v in report.variants)
-            bar = max(best, mrr(nearest) + NEAREST_LEAD) if nearest is not None else best
+            mrr = {label: by_group[g]["mrr"] for label, by_group in table.items()}
+            best = max(mrr[v] for v in report.variants)
+            bar = max(best, mrr[nearest] + NEAREST_LEAD) if nearest is not None else best
             for label in report.fused:
                 key = report.rows[label].key
-                margins.setdefault(key, []).append(mrr(label) - bar)
-                above[key] = above.get(key, 0) + (mrr(label) >= best)
+                margins.setdefault(key, []).append(mrr[label] - bar)
+                above[key] = above.get(key, 0) + (mrr[label] >= best)
     lines = ["| fused row | cells | at or above every single variant | mean margin over the bar |", "|---|---:|---:|---:|"]
     for key, values in margins.items():
         name = f"**{key}** (the ensemble row)" if key in ensemble_keys else key
