@@ -14,6 +14,7 @@ from ssga_bench.dataset_build import build_dataset
 from ssga_bench.experiment import Timings, Views, run_experiment, training_plan
 from ssga_bench.protocol import Protocol
 from ssga_bench.protocol import ProtocolConfig
+from ssga_bench.variant_training import _unused_options
 from ssga_bench.testing import WallWorkspaceSource
 
 
@@ -121,10 +122,19 @@ def test_parse_invented_retrains_only_the_orders_whose_parts_it_can_change(tmp_p
         run_experiment(experiment(stand_in_registry, ("PSD", "SD", "PDS"), **training), dataset, tmp_path)
         return {d.name: json.loads((d / "training.json").read_text())["key"] for d in (tmp_path / "variants").iterdir()}
 
-    before, after = keys(), keys(parse_invented=True)
+    before = keys()
     assert set(before) == {"PC-ST_PSD", "PC_SD", "PC-ST_PDS"}
-    assert before["PC-ST_PSD"] != after["PC-ST_PSD"]
-    assert {k: v for k, v in before.items() if k != "PC-ST_PSD"} == {k: v for k, v in after.items() if k != "PC-ST_PSD"}
+    # describe_invented changes the orders that describe before S (PDS) and no other; while it is off,
+    # every key is what it was before the option existed (the variant_key record without it).
+    for option, changed in (("parse_invented", "PC-ST_PSD"), ("describe_invented", "PC-ST_PDS")):
+        after = keys(**{option: True})
+        assert before[changed] != after[changed], option
+        assert {k: v for k, v in before.items() if k != changed} == {k: v for k, v in after.items() if k != changed}, option
+    # Off, describe_invented is left out of every key: the runs made before it existed resume.
+    exp = experiment(stand_in_registry, ("PSD", "SD", "PDS"))
+    for rv in exp.variants:
+        assert "describe_invented" in _unused_options(rv, TrainingConfig()), rv.label
+        assert ("describe_invented" in _unused_options(rv, TrainingConfig(describe_invented=True))) != rv.variant.describes_before_synthesis
 
 
 def test_an_interrupted_scoring_resumes_with_the_chunks_it_had_not_scored(tmp_path, dataset, stand_in_registry, monkeypatch):

@@ -273,6 +273,42 @@ def test_parse_invented_makes_parts_of_what_s_drew_where_no_part_landed(view):
     np.testing.assert_array_equal(build_graph(dataclasses.replace(pds, parse_invented=True), view, target).features, build_graph(pds, view, target).features)
 
 
+def test_describe_invented_describes_what_s_drew_where_no_source_pixel_landed(view):
+    # 0.6 m to the right: content moves 25.6 px left and FillingShift draws columns 230-255, which no
+    # source pixel reached. The synthetic view's one column of patches there (u = 244.8) is described
+    # beside the real view's carried patches; the carried ones are as without the option.
+    target = target_right(view, 0.6)
+    syn = FillingShift().synthesize(view, target)
+    fresh = PatchColour().extract(syn.view)
+    invented = fresh.descriptors[fresh.positions[:, 0] > 232]
+    assert len(invented) == 12
+    carried = int(syn.map_points(PatchColour().extract(view).positions)[1].sum())
+
+    def graphs(order, synthesizer=FillingShift()):
+        plain = dataclasses.replace(bind(order, stripes=8), synthesizer=synthesizer)
+        return build_graph(plain, view, target), build_graph(dataclasses.replace(plain, describe_invented=True), view, target)
+
+    before, after = graphs("DS")
+    np.testing.assert_allclose(after.features[0], (carried * before.features[0] + invented.sum(axis=0)) / (carried + len(invented)), rtol=1e-5)
+    # PDS parses them into a part of their own first (the last stripe, cut to the invented columns), as
+    # parse_invented does for PSD; the carried parts keep the real view's features.
+    before, after = graphs("PDS")
+    assert after.num_nodes == before.num_nodes + 1
+    np.testing.assert_array_equal(after.boxes[-1], [230, 0, 255, 255])
+    np.testing.assert_allclose(after.features[-1], invented.mean(axis=0), rtol=1e-5)
+    np.testing.assert_allclose(after.features[1:-1], before.features[1:])
+    # DSP parses after S: the invented column's patches join whichever part they fall in.
+    before, after = graphs("DSP")
+    assert not np.allclose(after.features[-1], before.features[-1])
+    # Orders that describe after S describe those pixels anyway; with nothing drawn there, nothing is added.
+    for order in ("SPD", "PSD", "SD"):
+        before, after = graphs(order)
+        np.testing.assert_array_equal(after.features, before.features, err_msg=order)
+    for order in ("DS", "PDS", "DSP"):
+        before, after = graphs(order, ShiftWarp())
+        np.testing.assert_array_equal(after.features, before.features, err_msg=order)
+
+
 def test_a_synthetic_views_graph_records_where_it_was_drawn(view):
     # 0.6 m to the right: content moves 25.6 px left, so columns 230-255 of the synthetic view are a hole.
     target = target_right(view, 0.6)

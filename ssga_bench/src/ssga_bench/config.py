@@ -177,6 +177,12 @@ class TrainingConfig(Strict):
         "no real view's part landed (a room it filled in), and adds those regions as parts; false: those pixels belong "
         "to no part, the paper's reading (ssga_core.pipeline).",
     )
+    describe_invented: bool = Field(
+        default=False,
+        description="An order that describes before S (PDS, DSP, DS) also describes what the synthesizer drew where no "
+        "real view's pixel landed (a room it filled in), PDS parsing it into parts first; false: only the real view's "
+        "features are carried, the paper's reading (ssga_core.pipeline).",
+    )
     real_for_every_class: bool = Field(
         default=True,
         description="Variants without S train each class of a cell on the cell's real graph (the paper: they 'simply use "

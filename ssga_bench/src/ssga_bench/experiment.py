@@ -75,6 +75,7 @@ from ssga_bench.variant_training import (
     VariantResult,
     finish_variant,
     finished_variant,
+    pipeline_options,
     prepare_variant,
     pseudo_graphs,
 )
@@ -369,7 +370,7 @@ def _train_variants(
     fitting = set(fitting_pseudo_views(plan.cells, plan.pseudo))
     rest = [i for i in range(len(plan.pseudo)) if i not in fitting] if synthesizing else []
     fitted = tuple(
-        FittedVariant(todo[n].variant, todo[n].folder, prepared[n].key, todo[n].oracle, todo[n].training.parse_invented) for n in synthesizing
+        FittedVariant(todo[n].variant, todo[n].folder, prepared[n].key, todo[n].oracle, pipeline_options(todo[n].training)) for n in synthesizing
     )
     jobs = [PseudoChunk(root, cache_folder, fitted, tuple((i, plan.pseudo[i]) for i in part)) for part in chunks(rest, PSEUDO_CHUNK)]
     for job, out in zip(jobs, executor.map(pseudo_graphs, jobs, describe=PseudoChunk.what, progress=bar("training graphs"))):

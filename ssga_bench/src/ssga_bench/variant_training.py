@@ -94,12 +94,25 @@ def variant_key(rv: ResolvedVariant, training: TrainingConfig, dataset: Dataset,
         "extra": extra,
         "variant": str(rv.variant),
         "stages": {k: [s.cls.name, s.config.model_dump(mode="json")] for k, s in sorted(rv.stages.items())},
-        # A setting that cannot change the variant's graphs stays out, so that trying it reuses the others.
-        "training": training.model_dump(mode="json", exclude=None if rv.variant.describes_carried_parts else {"parse_invented"}),
+        "training": training.model_dump(mode="json", exclude=_unused_options(rv, training)),
         "dataset": dataset.header,
         "plan": hashlib.blake2b((dataset.root / "plan.json").read_bytes(), digest_size=8).hexdigest(),
     }
     return hashlib.blake2b(json.dumps(spec, sort_keys=True).encode(), digest_size=10).hexdigest()
+
+
+def pipeline_options(training: TrainingConfig) -> tuple[tuple[str, bool], ...]:
+    """The training settings that are the pipeline's own (``BoundVariant`` fields): what S's drawing
+    where no source reached becomes."""
+    return (("parse_invented", training.parse_invented), ("describe_invented", training.describe_invented))
+
+
+def _unused_options(rv: ResolvedVariant, training: TrainingConfig) -> set[str]:
+    """Pipeline options left out of a variant's key: one that cannot change its graphs, so that trying
+    it reuses the other variants; and describe_invented while off, so that the runs made before it
+    existed keep their keys and resume."""
+    applies = {"parse_invented": rv.variant.describes_carried_parts, "describe_invented": rv.variant.describes_before_synthesis}
+    return {name for name, on in pipeline_options(training) if not applies[name] or (name == "describe_invented" and not on)}
 
 
 def _fit_classifier(
@@ -280,7 +293,7 @@ def prepare_variant(job: VariantJob) -> PrepareOutcome:
     try:
         # Every stage runs here (a learned one may load its checkpoint only when first used),
         # so a missing checkpoint shows here, not in the chunks.
-        bound = _bind(job.variant, job.oracle, job.training.parse_invented)
+        bound = _bind(job.variant, job.oracle, pipeline_options(job.training))
         instrument(bound, timings)
         first = fit_training_descriptor(bound, plan.cells, plan.pseudo)
         graphs, labels = real_training_graphs(bound, plan.cells, real_for_every_class=job.training.real_for_every_class, memo=cache)
@@ -291,11 +304,11 @@ def prepare_variant(job: VariantJob) -> PrepareOutcome:
     return PrepareOutcome(None, Prepared(key, bound.label, graphs, labels, fitting), "", timings)
 
 
-def _bind(variant: ResolvedVariant, oracle: ResolvedStage | None, parse_invented: bool = False) -> BoundVariant:
+def _bind(variant: ResolvedVariant, oracle: ResolvedStage | None, options: tuple[tuple[str, bool], ...] = ()) -> BoundVariant:
     """The variant's stages; the oracle's true renders in place of its synthesizer."""
     from ssga_bench.tasks import opened_workspace
 
-    bound = dataclasses.replace(variant.bind(), parse_invented=parse_invented)
+    bound = dataclasses.replace(variant.bind(), **dict(options))
     if oracle is not None:
         synthesizer = TrueRender(opened_workspace(oracle))
         bound = dataclasses.replace(bound, synthesizer=synthesizer, label=f"{bound.label} on {synthesizer.name}s")
@@ -303,11 +316,11 @@ def _bind(variant: ResolvedVariant, oracle: ResolvedStage | None, parse_invented
 
 
 def fitted_stages(
-    variant: ResolvedVariant, folder: str | Path, oracle: ResolvedStage | None = None, parse_invented: bool = False
+    variant: ResolvedVariant, folder: str | Path, oracle: ResolvedStage | None = None, options: tuple[tuple[str, bool], ...] = ()
 ) -> BoundVariant:
     """The variant's stages in another process, its descriptor as fitted: the state
     :func:`prepare_variant` left in ``folder / "descriptor.npz"``."""
-    bound = _bind(variant, oracle, parse_invented)
+    bound = _bind(variant, oracle, options)
     bound.descriptor.load_state_dict(load_npz(Path(folder) / "descriptor.npz"))
     return bound
 
@@ -328,7 +341,8 @@ class FittedVariant:
     folder: str
     key: str
     oracle: ResolvedStage | None
-    parse_invented: bool = False
+    options: tuple[tuple[str, bool], ...] = ()
+    """:func:`pipeline_options` of the run's training."""
 
 
 @dataclass(frozen=True)
@@ -371,7 +385,7 @@ def pseudo_graphs(chunk: PseudoChunk) -> ChunkGraphs:
         timings = Timings()
         bounds = []
         for v in chunk.variants:
-            bound = fitted_stages(v.variant, v.folder, v.oracle, v.parse_invented)
+            bound = fitted_stages(v.variant, v.folder, v.oracle, v.options)
             instrument(bound, timings)
             bounds.append(bound)
         return timings, bounds

@@ -25,7 +25,11 @@ has been parsed and described of it so far.
     ``parse_invented``, an order that parses before S and describes after it (PSD,
     ``Variant.describes_carried_parts``) parses the synthetic view too and adds, as parts,
     its regions that lie at least half in those pixels (cut to them); the carried parts
-    stay as they were.
+    stay as they were. With ``describe_invented``, an order that describes before S (PDS,
+    DSP, DS, ``Variant.describes_before_synthesis``) also describes the synthetic view where
+    no source pixel landed (its local features there join the carried ones); PDS, whose
+    parts are fixed before S, first parses those pixels into parts of their own as above.
+    The carried features and parts stay as the real view gave them.
 
 At the end the graph is assembled: node 0 is the whole image (all local features, or
 the region descriptor's image feature), nodes 1..K the surviving parts; a part with no
@@ -96,6 +100,9 @@ class BoundVariant:
     parse_invented: bool = False
     """An order that parses before S and describes after it (PSD) also parses what S invented:
     see the module docstring. Off: the paper's reading, where those pixels belong to no part."""
+    describe_invented: bool = False
+    """An order that describes before S (PDS, DSP, DS) also describes what S invented: see the
+    module docstring. Off: the paper's reading, where only the real view's features are carried."""
 
     def __post_init__(self) -> None:
         bound = {kind: type(stage) if (stage := getattr(self, kind)) is not None else None for kind in PIPELINE_KIND_NAMES}
@@ -160,6 +167,8 @@ def build_graph(
             if bound.parse_invented and bound.variant.describes_carried_parts:
                 assert bound.parser is not None
                 states[0].parse_invented(bound.parser)
+            if bound.describe_invented and bound.variant.describes_before_synthesis:
+                states[0].describe_invented(bound.descriptor, bound.parser)
             continue
         for state in states:
             if stage == "P":
@@ -329,6 +338,8 @@ def _join(states: Sequence[_State]) -> _State:
     if carried:
         view = dataclasses.replace(view, **carried)
     joined = _State(view, memo=states[0].memo)
+    if all(s.reached is not None for s in states):
+        joined.reached = np.logical_or.reduce([s.reached for s in states])
     if all(s.regions is not None for s in states):
         sizes = [len(s.regions) for s in states]
         offsets = np.concatenate([[0], np.cumsum(sizes)[:-1]]).astype(np.int32)
@@ -366,6 +377,8 @@ class _State:
     """Per local feature, its part index fixed before synthesis (-1 for none)."""
     region_features: np.ndarray | None = field(default=None)
     memo: FeatureMemo | None = None
+    reached: np.ndarray | None = None
+    """After S, ``(H, W)`` bool: the synthetic view's pixels some visible source pixel landed on."""
 
     def parse(self, parser: Parser) -> None:
         self.regions = self.memo.regions(parser, self.view) if self.memo else parser.parse(self.view)
@@ -373,6 +386,34 @@ class _State:
     def parse_invented(self, parser: Parser) -> None:
         """Add parts for the drawn pixels no carried part covers (the module docstring)."""
         assert self.regions is not None and self.local is None and self.region_features is None
+        self._add_invented_parts(parser)
+
+    def describe_invented(self, descriptor: Descriptor, parser: Parser | None) -> None:
+        """Describe the drawn pixels no source pixel reached, after S, for an order that described
+        before it (the module docstring); with carried parts, parse them into parts first."""
+        assert isinstance(descriptor, LocalDescriptor) and self.local is not None and self.reached is not None
+        # A source pixel splats to one target pixel, so a stretched surface leaves gaps between its
+        # splats: those are carried content, not invented, and a feature there is not added.
+        invented = self.view.valid_depth() & ~_dilated(self.reached, INVENTED_MARGIN)
+        if not invented.any():
+            return
+        carried_parts = len(self.regions) if self.regions is not None else 0
+        if self.regions is not None:
+            assert parser is not None
+            self._add_invented_parts(parser)
+        fresh = self.memo.local_features(descriptor, self.view) if self.memo else descriptor.extract(self.view)
+        added = fresh.select(_mask_at(invented, fresh.positions))
+        self.local = LocalFeatures(
+            positions=np.concatenate([self.local.positions, added.positions]).astype(np.float32),
+            descriptors=np.concatenate([self.local.descriptors, added.descriptors]).astype(np.float32),
+        )
+        if self.local_nodes is not None:  # parts fixed before S: an added feature belongs to an added part or none
+            assert self.regions is not None
+            nodes = _region_at(self.regions.labels, added.positions)
+            self.local_nodes = np.concatenate([self.local_nodes, np.where(nodes >= carried_parts, nodes, -1)]).astype(np.int32)
+
+    def _add_invented_parts(self, parser: Parser) -> None:
+        assert self.regions is not None
         carried = self.regions
         invented = self.view.valid_depth() & (carried.labels < 0)
         if not invented.any():
@@ -397,6 +438,7 @@ class _State:
             raise TypeError(f"{type(descriptor).__name__} must subclass LocalDescriptor or RegionDescriptor")
 
     def synthesize(self, syn: Synthesis) -> None:
+        self.reached = syn.warp_labels(np.zeros(syn.visible.shape, np.int32)) >= 0
         keep_parts = None
         if self.regions is not None:
             keep_parts, moved = carry_regions(self.regions, syn)
@@ -456,6 +498,32 @@ def carry_regions(regions: Regions, syn: Synthesis) -> tuple[np.ndarray, Regions
     boxes[keep] = np.concatenate([np.clip(np.nanmin(kept, axis=1), 0, limit), np.clip(np.nanmax(kept, axis=1), 0, limit)], axis=1)
     moved = dataclasses.replace(regions, labels=labels, boxes=boxes)
     return keep, moved.select(keep)
+
+
+INVENTED_MARGIN = 2
+"""Pixels: how far from every pixel a source reached a drawn pixel must be to count as invented
+(``describe_invented``): wider than the gaps a moderately stretched surface leaves between splats."""
+
+
+def _dilated(mask: np.ndarray, radius: int) -> np.ndarray:
+    """``mask`` grown by ``radius`` pixels (a square), with shifts: the core has no image library."""
+    out = mask.copy()
+    h, w = mask.shape
+    for dv in range(-radius, radius + 1):
+        for du in range(-radius, radius + 1):
+            out[max(dv, 0) : h + min(dv, 0), max(du, 0) : w + min(du, 0)] |= mask[max(-dv, 0) : h + min(-dv, 0), max(-du, 0) : w + min(-du, 0)]
+    return out
+
+
+def _mask_at(mask: np.ndarray, positions: np.ndarray) -> np.ndarray:
+    """``mask`` at each ``(u, v)`` position (nearest pixel); False outside the image."""
+    h, w = mask.shape
+    col = np.rint(np.nan_to_num(positions[:, 0], nan=-1.0)).astype(np.intp)
+    row = np.rint(np.nan_to_num(positions[:, 1], nan=-1.0)).astype(np.intp)
+    inside = (col >= 0) & (col < w) & (row >= 0) & (row < h)
+    out = np.zeros(len(positions), dtype=bool)
+    out[inside] = mask[row[inside], col[inside]]
+    return out
 
 
 def _region_at(labels: np.ndarray, positions: np.ndarray) -> np.ndarray:

@@ -80,6 +80,13 @@ class Variant:
         o = self.order
         return all(c in o for c in "PSD") and o.index("P") < o.index("S") < o.index("D")
 
+    @property
+    def describes_before_synthesis(self) -> bool:
+        """Describes the real view and carries its local features through S (PDS, DSP, DS): only
+        they leave undescribed what S drew where no source pixel landed (``BoundVariant.describe_invented``)."""
+        o = self.order
+        return "S" in o and o.index("D") < o.index("S")
+
     def kinds(self) -> list[str]:
         """The stage kinds this variant binds, in order of execution."""
         return [STAGE_KINDS[s] for s in self.order]
