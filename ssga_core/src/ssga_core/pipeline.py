@@ -378,7 +378,8 @@ class _State:
     region_features: np.ndarray | None = field(default=None)
     memo: FeatureMemo | None = None
     reached: np.ndarray | None = None
-    """After S, ``(H, W)`` bool: the synthetic view's pixels some visible source pixel landed on."""
+    """After S, for a state that carried local features: ``(H, W)`` bool, the synthetic view's pixels
+    some visible source pixel landed on."""
 
     def parse(self, parser: Parser) -> None:
         self.regions = self.memo.regions(parser, self.view) if self.memo else parser.parse(self.view)
@@ -438,7 +439,8 @@ class _State:
             raise TypeError(f"{type(descriptor).__name__} must subclass LocalDescriptor or RegionDescriptor")
 
     def synthesize(self, syn: Synthesis) -> None:
-        self.reached = syn.warp_labels(np.zeros(syn.visible.shape, np.int32)) >= 0
+        if self.local is not None:  # only carried features need it (describe_invented)
+            self.reached = syn.warp_labels(np.zeros(syn.visible.shape, np.int32)) >= 0
         keep_parts = None
         if self.regions is not None:
             keep_parts, moved = carry_regions(self.regions, syn)
