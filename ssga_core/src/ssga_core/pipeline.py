@@ -403,7 +403,7 @@ class _State:
             assert parser is not None
             self._add_invented_parts(parser)
         fresh = self.memo.local_features(descriptor, self.view) if self.memo else descriptor.extract(self.view)
-        added = fresh.select(_mask_at(invented, fresh.positions))
+        added = fresh.select(_pixel_at(invented, fresh.positions, False))
         self.local = LocalFeatures(
             positions=np.concatenate([self.local.positions, added.positions]).astype(np.float32),
             descriptors=np.concatenate([self.local.descriptors, added.descriptors]).astype(np.float32),
@@ -517,26 +517,20 @@ def _dilated(mask: np.ndarray, radius: int) -> np.ndarray:
     return out
 
 
-def _mask_at(mask: np.ndarray, positions: np.ndarray) -> np.ndarray:
-    """``mask`` at each ``(u, v)`` position (nearest pixel); False outside the image."""
-    h, w = mask.shape
-    col = np.rint(np.nan_to_num(positions[:, 0], nan=-1.0)).astype(np.intp)
-    row = np.rint(np.nan_to_num(positions[:, 1], nan=-1.0)).astype(np.intp)
+def _pixel_at(grid: np.ndarray, positions: np.ndarray, outside: int | bool) -> np.ndarray:
+    """``grid``'s value at each ``(u, v)`` position (nearest pixel); ``outside`` beyond the image."""
+    h, w = grid.shape
+    col = np.rint(positions[:, 0]).astype(np.intp)
+    row = np.rint(positions[:, 1]).astype(np.intp)
     inside = (col >= 0) & (col < w) & (row >= 0) & (row < h)
-    out = np.zeros(len(positions), dtype=bool)
-    out[inside] = mask[row[inside], col[inside]]
+    out = np.full(len(positions), outside, dtype=grid.dtype)
+    out[inside] = grid[row[inside], col[inside]]
     return out
 
 
 def _region_at(labels: np.ndarray, positions: np.ndarray) -> np.ndarray:
     """Region index at each ``(u, v)`` position (nearest pixel), -1 outside any region or the image."""
-    h, w = labels.shape
-    col = np.rint(positions[:, 0]).astype(np.intp)
-    row = np.rint(positions[:, 1]).astype(np.intp)
-    inside = (col >= 0) & (col < w) & (row >= 0) & (row < h)
-    out = np.full(len(positions), -1, dtype=np.int32)
-    out[inside] = labels[row[inside], col[inside]]
-    return out
+    return _pixel_at(labels.astype(np.int32, copy=False), positions, -1)
 
 
 def _renumber(nodes: np.ndarray, keep: np.ndarray) -> np.ndarray:
