@@ -172,6 +172,39 @@ def test_ceilings_of_a_choice_among_the_variants_by_hand():
     assert js["best_variant_per_view_mrr"]["L2"] == pytest.approx(75)
 
 
+def test_top1_of_the_location_by_hand():
+    # Six classes at two locations (cells 0 and 1, three headings each); four views.
+    cells = np.array([0, 0, 0, 1, 1, 1])
+    truth = np.array([0, 1, 4, 5])
+    a = np.array(
+        [
+            [9, 1, 1, 1, 1, 1],  # first: class 0, right
+            [1, 1, 9, 1, 1, 1],  # first: class 2, the right cell, another heading
+            [1, 1, 1, 9, 1, 1],  # first: class 3, the right cell
+            [9, 1, 1, 1, 1, 1],  # first: class 0, another cell
+        ],
+        dtype=float,
+    )
+    tie = np.ones((4, 6))  # every class ties: the first is class 0 (ties break by class index)
+    groups = {"L1": np.array([True, True, False, False]), "L2": np.array([False, False, True, True])}
+    report = Report.build("ws", {"a": a, "tie": tie}, truth, groups=groups, num_classes=6, ensemble=("E", a), place_locations=cells)
+    assert report.has_location
+    loc = {g: report.rows["a"].stats[g]["loc1"].value for g in ("L1", "L2", "all")}
+    assert loc == pytest.approx({"L1": 100, "L2": 50, "all": 75})
+    assert report.rows["a"].stats["all"]["top1"].value == pytest.approx(25)
+    assert report.rows["tie"].stats["all"]["loc1"].value == pytest.approx(50)  # class 0: right for views 0 and 1
+    # A random ranking puts its first class at the true location with 3 chances in 6.
+    assert report.rows["random"].stats["L2"]["loc1"].value == pytest.approx(50)
+    md = report.markdown()
+    assert "#### Top-1 of the location" in md and "| 100.0 ±32.9 | 50.0 ±40.5 | 75.0 ±32.7 |" in md.split("#### Top-1 of the location")[1]
+    assert report.to_json()["rows"][0]["stats"]["all"]["loc1"]["value"] == pytest.approx(75)
+    # Without the locations nothing of it is shown; wrong ones are refused.
+    plain = Report.build("ws", {"a": a}, truth, groups=groups, num_classes=6, ensemble=("E", a))
+    assert not plain.has_location and "location" not in plain.markdown()
+    with pytest.raises(ValueError, match="place_locations"):
+        Report.build("ws", {"a": a}, truth, groups=groups, num_classes=6, ensemble=("E", a), place_locations=cells[:5])
+
+
 def test_thin_and_empty_groups_are_named():
     truth = np.array([0, 1])
     groups = level_groups(np.array([1, 1]))
@@ -204,6 +237,7 @@ def test_bench_summary_over_seeds():
         report = Report.build(
             "ws", variants, truth, groups=groups, num_classes=10, ensemble=(f"E of {best}", good + noise), best_single=best,
             references={nn: good}, series={nn: "nearest neighbour (best single)", f"E of {best}": "E chosen on validation"},
+            place_locations=np.arange(10) // 5,
         )  # fmt: skip
         runs[seed] = SeedRun(report, {"train": 1.0 + seed, "describe": 4.0}, 10.0, {"variants": 6.0}, {"describe": 80})
     md = bench_summary(runs)
@@ -214,6 +248,9 @@ def test_bench_summary_over_seeds():
     assert "| best single (validation) |" in md  # one row, whichever variant each seed chose
     assert "E chosen on validation" in md and "E of good" not in md  # so is an ensemble whose members were chosen
     assert "| 0 | 40 | 40 | 40 | 60 | 60 | 120 |" in md
+    location = md.split("## Top-1 of the location")[1].split("##")[0]
+    loc = mean_interval(np.array([runs[s].report.table["noise"]["L1"]["loc1"] for s in (0, 1)]))
+    assert f"| noise | {loc.text()} |" in location
     assert "seed 1 L3" in md and "| noise | +" in md
     r = runs[1].report
     ceiling = " / ".join(f"{r.best_variant_per_view(g):.1f}" for g in ("L1", "L2", "L3"))

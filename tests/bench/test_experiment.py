@@ -95,6 +95,15 @@ def test_runs_fuses_reports_and_resumes(tmp_path, dataset, stand_in_registry, mo
     assert scores.shape == (len(dataset.split("test")), dataset.num_classes)
     np.testing.assert_allclose(scores.sum(axis=1), 1.0, rtol=1e-5)
     assert {"parse", "describe", "synthesize", "train", "evaluate"} <= set(timings.seconds)
+    # Every row is also scored by its place alone (the class's cell, whatever the heading), which
+    # a Top-1 hit always has too.
+    cells = dataset.place_cells
+    assert cells is not None and all(cells[s.place] == s.cell for s in dataset.plan.samples)
+    assert len(set(cells.tolist())) == dataset.num_classes // 12  # twelve headings a cell
+    for label in report.variants:
+        stats = report.rows[label].stats["all"]
+        assert stats["top1"].value <= stats["loc1"].value <= 100
+    assert "#### Top-1 of the location" in (tmp_path / "report.md").read_text()
 
     # A second run trains nothing; a changed training config retrains.
     def no_training(*args, **kwargs):

@@ -18,7 +18,7 @@ from ssga_core.errors import InputError
 from ssga_core.variants import VariantSyntaxError, parse_variant
 from ssga_core.plugins import Registry
 from ssga_bench.config import Experiment, validate_experiment
-from ssga_bench.evaluation import METRIC_TITLES, METRICS, THIN, Report, difference_text, seeds_estimate
+from ssga_bench.evaluation import LOCATION, LOCATION_NOTE, METRIC_TITLES, METRICS, THIN, Report, difference_text, seeds_estimate
 from ssga_bench.execution import open_executor
 from ssga_bench.experiment import Progress, run
 from ssga_bench.io import atomic_write_bytes, write_json
@@ -113,22 +113,22 @@ TRAIN_SHARE_TARGET = 15.0
 """Percent of wall time the GCN training phase should stay under."""
 
 
-def _seed_table(runs: dict[int, SeedRun]) -> list[str]:
+def _seed_table(runs: dict[int, SeedRun], metrics: Sequence[str] = METRICS) -> list[str]:
     seeds = sorted(runs)
     groups = runs[seeds[0]].report.levels
     # Rows by their key across seeds (the best single variant's label changes with the seed).
     keyed = [{row.key: row for row in runs[s].report.rows.values()} for s in seeds]
     kinds = {key: row.kind for rows in keyed for key, row in rows.items()}
-    head = "| | " + " | ".join(f"{METRIC_TITLES[m]} {g}" for m in METRICS for g in groups) + " |"
-    lines = [head, "|---|" + "---:|" * (len(METRICS) * len(groups))]
+    head = "| | " + " | ".join(f"{METRIC_TITLES[m]} {g}" for m in metrics for g in groups) + " |"
+    lines = [head, "|---|" + "---:|" * (len(metrics) * len(groups))]
     for key, kind in kinds.items():
         per_seed = [rows[key].stats for rows in keyed if key in rows]
-        cells = [seeds_estimate([stats[g][m] for stats in per_seed if g in stats]).text() for m in METRICS for g in groups]
+        cells = [seeds_estimate([stats[g][m] for stats in per_seed if g in stats]).text() for m in metrics for g in groups]
         name = f"**{key}**" if kind == "ensemble" else key
         lines.append(f"| {name} | " + " | ".join(cells) + " |")
     for label in dict.fromkeys(label for s in seeds for label in runs[s].report.not_run):
         if label not in kinds:
-            lines.append(f"| {label} ⚠ | " + " | ".join("not run" for _ in METRICS for _ in groups) + " |")
+            lines.append(f"| {label} ⚠ | " + " | ".join("not run" for _ in metrics for _ in groups) + " |")
     return lines
 
 
@@ -337,6 +337,9 @@ def bench_summary(runs: dict[int, SeedRun]) -> str:
     groups = list(dict.fromkeys(g for r in reports.values() for g in r.counts))
     interval = "95% t-interval across seeds" if len(seeds) > 1 else "one seed: 95% per-query intervals"
     lines = [f"## Mean over seeds {', '.join(map(str, seeds))} (± {interval})", "", *_seed_table(runs), ""]
+    if all(r.has_location for r in reports.values()):
+        lines += ["## Top-1 of the location (the first class at the right cell, whatever its heading)", "", LOCATION_NOTE, ""]
+        lines += [*_seed_table(runs, (LOCATION,)), ""]
     lines += ["## Test views per group", "", "| seed | " + " | ".join(groups) + " |", "|---|" + "---:|" * len(groups)]
     lines += [f"| {s} | " + " | ".join(str(r.counts.get(g, 0)) for g in groups) + " |" for s, r in reports.items()]
     thin = sorted({f"{g} (seed {s}: n={n})" for s, r in reports.items() for g, n in r.thin_groups().items()})

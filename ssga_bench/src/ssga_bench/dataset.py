@@ -163,6 +163,15 @@ class Dataset:
     def split(self, split: str) -> list[Sample]:
         return self.plan.split(split)  # type: ignore[arg-type]
 
+    @property
+    def place_cells(self) -> np.ndarray | None:
+        """``(C,)`` the grid cell of each class (its location), read from the plan's samples; None
+        where some class has no sample to say it."""
+        cells = np.full(self.num_classes, -1, dtype=np.int64)
+        for s in self.plan.samples:
+            cells[s.place] = s.cell
+        return cells if np.all(cells >= 0) else None
+
     def sample(self, sample_id: str) -> Sample:
         """The sample of the plan with this id."""
         if not hasattr(self, "_by_id"):

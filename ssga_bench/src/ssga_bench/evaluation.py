@@ -6,7 +6,11 @@ L2, L3, any other groups the caller passes, such as near/far, and all views) by:
 
 * Top-1, Top-5 and MRR (the paper's Table 1), in percent;
 * Recall@N, the share of queries whose true class ranks N or better (one true class
-  per query), for N = 10 and 20; R@1 is Top-1 and R@5 is Top-5, so they are not repeated.
+  per query), for N = 10 and 20; R@1 is Top-1 and R@5 is Top-5, so they are not repeated;
+* where the caller says which location (cell) each class is at, the Top-1 of the location:
+  the share of queries whose first class is at the true class's location, whatever its
+  heading. Top-1 counts a query right only with its heading too, so the difference is the
+  queries that found the place but not the way the camera faces.
 
 Each value comes with n and a 95% interval: a Wilson score interval for the rates
 (Top-k, Recall@N: it stays inside 0-100% and is not zero-width at 0% or 100%), a
@@ -38,7 +42,9 @@ RECALLS = ("r10", "r20")
 ALL_METRICS = METRICS + RECALLS
 CUTOFFS = {"top1": 1, "top5": 5, "r10": 10, "r20": 20}
 """The rate metrics: the share of queries whose true class ranks this or better."""
-METRIC_TITLES = {"top1": "Top-1[%]", "top5": "Top-5[%]", "mrr": "MRR[%]", "r10": "R@10[%]", "r20": "R@20[%]"}
+LOCATION = "loc1"
+"""The Top-1 of the location, scored only where the caller gives each class's location."""
+METRIC_TITLES = {"top1": "Top-1[%]", "top5": "Top-5[%]", "mrr": "MRR[%]", "r10": "R@10[%]", "r20": "R@20[%]", LOCATION: "Top-1 location[%]"}
 LEVELS = ("L1", "L2", "L3", "all")
 THIN = 30
 """Groups with fewer test views than this are reported as too thin to read."""
@@ -52,6 +58,12 @@ INTERVALS = (
 Z95 = 1.959963984540054
 _T95 = (12.706, 4.303, 3.182, 2.776, 2.571, 2.447, 2.365, 2.306, 2.262, 2.228, 2.201, 2.179, 2.160, 2.145, 2.131)
 """Two-sided 95% quantiles of Student's t for 1..15 degrees of freedom (no scipy needed)."""
+
+
+LOCATION_NOTE = (
+    "Top-1 counts a test view right only with its heading as well; the difference between the two is the views "
+    "whose place was found but not the way the camera faces, and 100 less this is the share sent to another place."
+)
 
 
 def t95(df: int) -> float:
@@ -175,6 +187,20 @@ def random_metrics(num_classes: int) -> dict[str, float]:
     return rates | {"mrr": 100 * harmonic / num_classes}
 
 
+def location_hits(scores: np.ndarray, truth: np.ndarray, place_locations: np.ndarray) -> np.ndarray:
+    """Per query, whether its first class (ties broken by class index, as the ranks do) is at the
+    true class's location: ``place_locations`` is the ``(C,)`` location of each class."""
+    first = np.argmax(np.asarray(scores), axis=-1)
+    return place_locations[first] == place_locations[np.asarray(truth)]
+
+
+def random_location_top1(truth: np.ndarray, place_locations: np.ndarray) -> float:
+    """The expected Top-1 of the location of a uniformly random ranking, in percent: each query's
+    first class is at its location with the share of classes that are."""
+    at_each = np.bincount(place_locations)
+    return 100.0 * float(np.mean(at_each[place_locations[np.asarray(truth)]])) / len(place_locations) if len(truth) else math.nan
+
+
 def level_groups(levels: np.ndarray) -> dict[str, np.ndarray]:
     """``{"L1": mask, "L2": mask, "L3": mask}`` of the test views' difficulty levels."""
     levels = np.asarray(levels)
@@ -270,6 +296,7 @@ class Report:
         flags: Mapping[str, str] | None = None,
         not_run: Mapping[str, str] | None = None,
         series: Mapping[str, str] | None = None,
+        place_locations: np.ndarray | None = None,
     ) -> Report:
         """Score every row.
 
@@ -288,6 +315,9 @@ class Report:
                 is listed in the tables as not run.
             series: for the ensemble and reference rows whose label depends on what was
                 chosen on this seed's data, the name that joins them across seeds.
+            place_locations: ``(C,)`` the location (grid cell) of each class, non-negative
+                integers; with it every row is also scored by the Top-1 of the location
+                (:data:`LOCATION`).
         """
         references, flags = dict(references or {}), dict(flags or {})
         truth = np.asarray(truth)
@@ -313,11 +343,21 @@ class Report:
         rank = {label: truth_ranks(s, truth) for label, s in scored.items()}
         stats = {label: group_estimates(r, masks) for label, r in rank.items()}
         counts = {g: int(m.sum()) for g, m in masks.items()}
-        chance = random_metrics(num_classes)
+        chance = {g: random_metrics(num_classes) for g in masks}
+        if place_locations is not None:
+            place_locations = np.asarray(place_locations)
+            if place_locations.shape != (num_classes,) or not np.issubdtype(place_locations.dtype, np.integer) or np.any(place_locations < 0):
+                raise ValueError(f"place_locations: expected {num_classes} non-negative integer locations, got {place_locations.dtype} of shape {place_locations.shape}")
+            for label, s in scored.items():
+                hits = location_hits(s, truth, place_locations)
+                for g, m in masks.items():
+                    stats[label][g][LOCATION] = rate_interval(hits[m])
+            for g, m in masks.items():
+                chance[g][LOCATION] = random_location_top1(truth[m], place_locations)
 
         def row(label: str, kind: Kind, source: str | None = None) -> Row:
             of = source or label
-            at_chance = (AT_CHANCE,) if stats[of]["all"]["mrr"].contains(chance["mrr"]) else ()
+            at_chance = (AT_CHANCE,) if stats[of]["all"]["mrr"].contains(chance["all"]["mrr"]) else ()
             return Row(label, kind, stats[of], tuple(f for f in (flags.get(of),) if f) + at_chance, source)
 
         # The ensemble's label names its members where they were chosen on this seed's
@@ -326,7 +366,7 @@ class Report:
         if best_single is not None:
             rows.append(row(f"best single ({best_single_basis}): {best_single}", "best single", best_single))
         rows += [dataclasses.replace(row(r, "reference"), series=(series or {}).get(r)) for r in references]
-        rows.append(Row("random", "random", {g: {m: exact(v, counts[g]) for m, v in chance.items()} for g in masks}))
+        rows.append(Row("random", "random", {g: {m: exact(v, counts[g]) for m, v in chance[g].items()} for g in masks}))
         return cls(title, {r.label: r for r in rows}, counts, num_classes, rank, masks, dict(not_run or {}))
 
     # -- what the rows are -----------------------------------------------------------
@@ -360,6 +400,11 @@ class Report:
     @property
     def other_groups(self) -> list[str]:
         return [g for g in self.counts if g not in LEVELS]
+
+    @property
+    def has_location(self) -> bool:
+        """Whether the rows are also scored by the Top-1 of the location (the classes' locations were given)."""
+        return all(LOCATION in row.stats["all"] for row in self.rows.values())
 
     def thin_groups(self) -> dict[str, int]:
         return {g: n for g, n in self.counts.items() if n < THIN}
@@ -478,6 +523,9 @@ class Report:
         if self.other_groups:
             lines += ["#### By group", "", *self._table(METRICS, [*self.other_groups, "all"])]
         lines += ["#### Recall@N (R@1 is Top-1, R@5 is Top-5)", "", *self._table(RECALLS, list(self.counts))]
+        if self.has_location:
+            lines += ["#### Top-1 of the location (the first class at the right cell, whatever its heading)", "", LOCATION_NOTE, ""]
+            lines += self._table((LOCATION,), list(self.counts))
         flagged = [(label, row.flags) for label, row in self.rows.items() if row.flags]
         flagged += [(label, (f"not run, {why}",)) for label, why in self.not_run.items()]
         if flagged:

@@ -71,6 +71,7 @@ def write_report(
             flags=flags,
             not_run=not_run,
             series={label: name for label, name in series.items() if label in references or label == ensemble[0]},
+            place_locations=dataset.place_cells,
         )
     with timings.phase("report"), timings.wall_phase("report"):
         atomic_write_bytes(out / "report.md", report.markdown().encode())
