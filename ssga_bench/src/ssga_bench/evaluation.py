@@ -346,8 +346,12 @@ class Report:
         chance = {g: random_metrics(num_classes) for g in masks}
         if place_locations is not None:
             place_locations = np.asarray(place_locations)
-            if place_locations.shape != (num_classes,) or not np.issubdtype(place_locations.dtype, np.integer) or np.any(place_locations < 0):
-                raise ValueError(f"place_locations: expected {num_classes} non-negative integer locations, got {place_locations.dtype} of shape {place_locations.shape}")
+            integer = np.issubdtype(place_locations.dtype, np.integer)
+            if place_locations.shape != (num_classes,) or not integer or np.any(place_locations < 0):
+                raise ValueError(
+                    f"place_locations: expected {num_classes} non-negative integer locations, "
+                    f"got {place_locations.dtype} of shape {place_locations.shape}"
+                )
             for label, s in scored.items():
                 hits = location_hits(s, truth, place_locations)
                 for g, m in masks.items():
