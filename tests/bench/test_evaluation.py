@@ -198,9 +198,14 @@ def test_top1_of_the_location_by_hand():
     md = report.markdown()
     assert "#### Top-1 of the location" in md and "| 100.0 ±32.9 | 50.0 ±40.5 | 75.0 ±32.7 |" in md.split("#### Top-1 of the location")[1]
     assert report.to_json()["rows"][0]["stats"]["all"]["loc1"]["value"] == pytest.approx(75)
+    # The plot gives it a panel of its own beside Table 1's three (5 inches at 100 dpi each).
+    from PIL import Image
+
+    assert Image.open(io.BytesIO(report.plot())).width == 4 * 500
     # Without the locations nothing of it is shown; wrong ones are refused.
     plain = Report.build("ws", {"a": a}, truth, groups=groups, num_classes=6, ensemble=("E", a))
     assert not plain.has_location and "location" not in plain.markdown()
+    assert Image.open(io.BytesIO(plain.plot())).width == 3 * 500
     with pytest.raises(ValueError, match="place_locations"):
         Report.build("ws", {"a": a}, truth, groups=groups, num_classes=6, ensemble=("E", a), place_locations=cells[:5])
 

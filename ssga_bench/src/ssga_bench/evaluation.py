@@ -583,7 +583,8 @@ class Report:
         }
 
     def plot(self) -> bytes:
-        """PNG: one panel per Table 1 metric, bars per level group for each row, with 95% error bars."""
+        """PNG: one panel per Table 1 metric (and the Top-1 of the location, where scored), bars per
+        level group for each row, with 95% error bars."""
         import matplotlib
 
         matplotlib.use("Agg")
@@ -591,10 +592,11 @@ class Report:
 
         rows = [label for label, row in self.rows.items() if row.kind != "best single"]  # a repeat
         groups = self.levels
-        fig, axes = plt.subplots(1, len(METRICS), figsize=(5 * len(METRICS), 4.8))
+        metrics = METRICS + ((LOCATION,) if self.has_location else ())
+        fig, axes = plt.subplots(1, len(metrics), figsize=(5 * len(metrics), 4.8))
         width = 0.8 / len(rows)
         cmap = plt.get_cmap("tab20")
-        for ax, m in zip(axes, METRICS):
+        for ax, m in zip(axes, metrics):
             for i, label in enumerate(rows):
                 kind, est = self.rows[label].kind, [self.rows[label].stats[g][m] for g in groups]
                 values = np.array([e.value for e in est])
