@@ -44,6 +44,10 @@ CUTOFFS = {"top1": 1, "top5": 5, "r10": 10, "r20": 20}
 """The rate metrics: the share of queries whose true class ranks this or better."""
 LOCATION = "loc1"
 """The Top-1 of the location, scored only where the caller gives each class's location."""
+LOCATION_NOTE = (
+    "Top-1 counts a test view right only with its heading as well; the difference between the two is the views "
+    "whose place was found but not the way the camera faces, and 100 less this is the share sent to another place."
+)
 METRIC_TITLES = {"top1": "Top-1[%]", "top5": "Top-5[%]", "mrr": "MRR[%]", "r10": "R@10[%]", "r20": "R@20[%]", LOCATION: "Top-1 location[%]"}
 LEVELS = ("L1", "L2", "L3", "all")
 THIN = 30
@@ -58,12 +62,6 @@ INTERVALS = (
 Z95 = 1.959963984540054
 _T95 = (12.706, 4.303, 3.182, 2.776, 2.571, 2.447, 2.365, 2.306, 2.262, 2.228, 2.201, 2.179, 2.160, 2.145, 2.131)
 """Two-sided 95% quantiles of Student's t for 1..15 degrees of freedom (no scipy needed)."""
-
-
-LOCATION_NOTE = (
-    "Top-1 counts a test view right only with its heading as well; the difference between the two is the views "
-    "whose place was found but not the way the camera faces, and 100 less this is the share sent to another place."
-)
 
 
 def t95(df: int) -> float:
