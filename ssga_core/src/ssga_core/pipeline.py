@@ -520,8 +520,9 @@ def _dilated(mask: np.ndarray, radius: int) -> np.ndarray:
 def _pixel_at(grid: np.ndarray, positions: np.ndarray, outside: int | bool) -> np.ndarray:
     """``grid``'s value at each ``(u, v)`` position (nearest pixel); ``outside`` beyond the image."""
     h, w = grid.shape
-    col = np.rint(positions[:, 0]).astype(np.intp)
-    row = np.rint(positions[:, 1]).astype(np.intp)
+    # A position that is not a number counts as outside (casting NaN to an integer is undefined).
+    col = np.rint(np.nan_to_num(positions[:, 0], nan=-1.0)).astype(np.intp)
+    row = np.rint(np.nan_to_num(positions[:, 1], nan=-1.0)).astype(np.intp)
     inside = (col >= 0) & (col < w) & (row >= 0) & (row < h)
     out = np.full(len(positions), outside, dtype=grid.dtype)
     out[inside] = grid[row[inside], col[inside]]
