@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import re
@@ -126,10 +127,10 @@ def test_runs_fuses_reports_and_resumes(tmp_path, dataset, stand_in_registry, mo
         run_experiment(experiment(stand_in_registry, seed=1), dataset, tmp_path)
 
 
-def test_parse_invented_retrains_only_the_orders_whose_parts_it_can_change(tmp_path, dataset, stand_in_registry):
-    def keys(**training):
-        run_experiment(experiment(stand_in_registry, ("PSD", "SD", "PDS"), **training), dataset, tmp_path)
-        return {d.name: json.loads((d / "training.json").read_text())["key"] for d in (tmp_path / "variants").iterdir()}
+def test_parse_invented_retrains_only_the_orders_whose_parts_it_can_change(tmp_path, dataset, stand_in_registry, monkeypatch):
+    def keys(out=tmp_path, **training):
+        run_experiment(experiment(stand_in_registry, ("PSD", "SD", "PDS"), **training), dataset, out)
+        return {d.name: json.loads((d / "training.json").read_text())["key"] for d in (out / "variants").iterdir()}
 
     before = keys()
     assert set(before) == {"PC-ST_PSD", "PC_SD", "PC-ST_PDS"}
@@ -139,11 +140,21 @@ def test_parse_invented_retrains_only_the_orders_whose_parts_it_can_change(tmp_p
         after = keys(**{option: True})
         assert before[changed] != after[changed], option
         assert {k: v for k, v in before.items() if k != changed} == {k: v for k, v in after.items() if k != changed}, option
-    # Off, describe_invented is left out of every key: the runs made before it existed resume.
+    # Off, describe_invented and join_split_parts are left out of every key: the runs made before them resume.
     exp = experiment(stand_in_registry, ("PSD", "SD", "PDS"))
     for rv in exp.variants:
-        assert "describe_invented" in _unused_options(rv, TrainingConfig()), rv.label
+        assert {"describe_invented", "join_split_parts"} <= _unused_options(rv, TrainingConfig()), rv.label
         assert ("describe_invented" in _unused_options(rv, TrainingConfig(describe_invented=True))) != rv.variant.describes_before_synthesis
+    # join_split_parts changes only the orders that carry parts through S, and only with a parser of
+    # category pieces: with the stand-in's stripes it retrains nothing.
+    assert keys(join_split_parts=True) == before
+    from ssga_core.testing.stages import StripesParser
+
+    stripes = StripesParser._parse
+    monkeypatch.setattr(StripesParser, "regions_are_category_pieces", True)
+    monkeypatch.setattr(StripesParser, "_parse", lambda self, view: dataclasses.replace(r := stripes(self, view), categories=np.arange(len(r), dtype=np.int32)))
+    joined = keys(tmp_path / "pieces", join_split_parts=True)  # a cache of its own: the parser's output changed
+    assert {name for name in before if joined[name] != before[name]} == {"PC-ST_PSD", "PC-ST_PDS"}
 
 
 def test_an_interrupted_scoring_resumes_with_the_chunks_it_had_not_scored(tmp_path, dataset, stand_in_registry, monkeypatch):

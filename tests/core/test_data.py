@@ -69,6 +69,23 @@ def test_region_attributes_travel_with_their_regions():
         Regions(labels=labels, boxes=regions.boxes, scores=np.ones(2, np.float32))
 
 
+def test_merging_regions_joins_their_pixels_and_unites_their_boxes():
+    labels = np.array([[0, 0, 1, 2], [3, 3, 1, 2]], np.int32)
+    regions = Regions(
+        labels=labels,
+        boxes=np.array([[0, 0, 1.5, 0], [2, 0, 2, 1], [3, 0, 3, 1], [0, 1, 1, 1]], np.float32),  # 0's box is wider than its mask, as a carried one
+        categories=np.array([5, 5, 6, 7], np.int32),
+        names=("wall", "wall", "door", "rug"),
+    )
+    merged = regions.merge(np.array([0, 0, 1, -1]))
+    np.testing.assert_array_equal(merged.labels, [[0, 0, 0, 1], [-1, -1, 0, 1]])
+    np.testing.assert_array_equal(merged.boxes, [[0, 0, 2, 1], [3, 0, 3, 1]])
+    np.testing.assert_array_equal(merged.categories, [5, 6])
+    assert merged.names == ("wall", "door")
+    with pytest.raises(InputError, match="none empty"):
+        regions.merge(np.array([0, 2, 2, -1]))
+
+
 def test_regions_reject_labels_without_boxes():
     with pytest.raises(InputError, match="label 2 has no box"):
         Regions(labels=np.full((4, 4), 2, np.int32), boxes=np.zeros((1, 4), np.float32))

@@ -13,7 +13,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from ssga_core import InputError, Pose, parse_variant
+from ssga_core import InputError, Pose, Regions, boxes_from_labels, parse_variant
 from ssga_core.pipeline import BoundVariant, build_graph, table_label
 from ssga_core.testing import make_view
 from ssga_core.testing.stages import PatchColour, RegionColour, ShiftWarp, StripesParser, StripesConfig
@@ -307,6 +307,85 @@ def test_describe_invented_describes_what_s_drew_where_no_source_pixel_landed(vi
     for order in ("DS", "PDS", "DSP"):
         before, after = graphs(order, ShiftWarp())
         np.testing.assert_array_equal(after.features, before.features, err_msg=order)
+
+
+class CategoryStripes(StripesParser):
+    """Stripes, each a piece of a category of its own (its index), as a segmenter's regions are."""
+
+    regions_are_category_pieces = True
+
+    def _parse(self, view):
+        regions = super()._parse(view)
+        return dataclasses.replace(regions, categories=np.arange(len(regions), dtype=np.int32))
+
+
+def joining(order, join=True):
+    plain = dataclasses.replace(bind(order), parser=CategoryStripes(StripesConfig(stripes=8)), synthesizer=FillingShift())
+    return dataclasses.replace(plain, parse_invented=True, describe_invented=True, join_split_parts=join)
+
+
+def test_join_split_parts_makes_a_carried_part_and_what_s_drew_beside_it_one_part(view):
+    # 0.6 m to the right: content moves 25.6 px left, the real view's last stripe lands on columns
+    # 198-229 and FillingShift draws 230-255, which parse_invented makes a part of the same category
+    # (the synthetic view's last stripe). Joined, they are one part, as a query's parse would have it.
+    target = target_right(view, 0.6)
+    split, joined = build_graph(joining("PSD", join=False), view, target), build_graph(joining("PSD"), view, target)
+    assert joined.num_nodes == split.num_nodes - 1
+    np.testing.assert_allclose(joined.boxes[-1], [split.boxes[-2][0], 0, 255, 255])
+    local = PatchColour().extract(FillingShift().synthesize(view, target).view)
+    np.testing.assert_allclose(joined.features[-1], local.descriptors[local.positions[:, 0] > split.boxes[-2][0]].mean(axis=0), rtol=1e-6)
+    np.testing.assert_allclose(joined.features[:-1], split.features[:-2])
+    # 0.3 m: what S drew (columns 243-255) is under half of the synthetic view's last stripe, so
+    # parse_invented leaves it out; joining, it goes to the carried stripe beside it (211-242).
+    target = target_right(view, 0.3)
+    split, joined = build_graph(joining("PSD", join=False), view, target), build_graph(joining("PSD"), view, target)
+    assert joined.num_nodes == split.num_nodes
+    assert split.boxes[-1][2] < 243 and joined.boxes[-1][2] == 255
+    local = PatchColour().extract(FillingShift().synthesize(view, target).view)
+    np.testing.assert_allclose(joined.features[-1], local.descriptors[local.positions[:, 0] > split.boxes[-1][0]].mean(axis=0), rtol=1e-6)
+
+
+def test_join_split_parts_in_pds_pools_the_carried_and_the_added_features_of_the_joined_part(view):
+    target = target_right(view, 0.6)
+    split, joined = build_graph(joining("PDS", join=False), view, target), build_graph(joining("PDS"), view, target)
+    assert joined.num_nodes == split.num_nodes - 1
+    syn = FillingShift().synthesize(view, target)
+    real = PatchColour().extract(view)
+    _, visible = syn.map_points(real.positions)
+    last_stripe = np.rint(real.positions[:, 0]).astype(int) * 8 // 256 == 7
+    fresh = PatchColour().extract(syn.view)
+    members = np.concatenate([real.descriptors[visible & last_stripe], fresh.descriptors[fresh.positions[:, 0] > 232]])
+    np.testing.assert_allclose(joined.features[-1], members.mean(axis=0), rtol=1e-5)
+    np.testing.assert_allclose(joined.features[:-1], split.features[:-2])
+
+
+def test_join_split_parts_leaves_parsers_of_other_regions_and_orders_without_carried_parts_as_they_were(view):
+    target = target_right(view, 0.6)
+    for order in ("PSD", "PDS"):  # superpixels or instances: touching regions are not pieces of one
+        plain = dataclasses.replace(joining(order), parser=StripesParser(StripesConfig(stripes=8)))
+        np.testing.assert_array_equal(build_graph(plain, view, target).features, build_graph(dataclasses.replace(plain, join_split_parts=False), view, target).features)
+    for order in ("SPD", "DSP"):  # parsed after S: the synthetic view's own pieces
+        np.testing.assert_array_equal(build_graph(joining(order), view, target).features, build_graph(joining(order, join=False), view, target).features)
+
+
+def test_joining_unites_touching_parts_of_one_category_and_drops_the_optional_ones_left_alone():
+    from ssga_core.pipeline import _State
+
+    labels = np.full((4, 10), -1, np.int32)
+    labels[:, 0:3], labels[:, 4:6], labels[:, 6:8], labels[:, 9] = 0, 1, 2, 3  # a one-pixel gap between 0 and 1
+    regions = Regions(labels=labels, boxes=boxes_from_labels(labels, 4), categories=np.array([0, 0, 1, 0], np.int32))
+    state = _State(make_view(seed=3), regions=regions)
+    state.join_split_parts(np.array([False, False, False, True]))  # 3 touches only 2, of another category
+    expected = np.full((4, 10), -1, np.int32)
+    expected[:, 0:3], expected[:, 4:6], expected[:, 6:8] = 0, 0, 1
+    np.testing.assert_array_equal(state.regions.labels, expected)
+    np.testing.assert_array_equal(state.regions.boxes, [[0, 0, 5, 3], [6, 0, 7, 3]])
+    # Three pixels apart is not touching.
+    labels[:, 3:6] = -1
+    labels[:, 6:10] = 1
+    state = _State(make_view(seed=3), regions=Regions(labels=labels, boxes=boxes_from_labels(labels, 2), categories=np.zeros(2, np.int32)))
+    state.join_split_parts(None)
+    assert len(state.regions) == 2
 
 
 def test_a_synthetic_views_graph_records_where_it_was_drawn(view):

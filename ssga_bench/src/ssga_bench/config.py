@@ -183,6 +183,13 @@ class TrainingConfig(Strict):
         "real view's pixel landed (a room it filled in), PDS parsing it into parts first; false: only the real view's "
         "features are carried, the paper's reading (ssga_core.pipeline).",
     )
+    join_split_parts: bool = Field(
+        default=False,
+        description="An order that parses before S (PDS, PSD), with a parser whose regions are connected pieces of one "
+        "category (cascade-seg), joins the parts of one category that touch in the synthetic view, as the parser cuts "
+        "a query: a part the real view's frame cut off meets what the synthesizer drew beside it; false: each carried "
+        "part stays one node, the paper's reading (ssga_core.pipeline).",
+    )
     real_for_every_class: bool = Field(
         default=True,
         description="Variants without S train each class of a cell on the cell's real graph (the paper: they 'simply use "

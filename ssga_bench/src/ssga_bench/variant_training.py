@@ -101,18 +101,30 @@ def variant_key(rv: ResolvedVariant, training: TrainingConfig, dataset: Dataset,
     return hashlib.blake2b(json.dumps(spec, sort_keys=True).encode(), digest_size=10).hexdigest()
 
 
+PIPELINE_OPTIONS = ("parse_invented", "describe_invented", "join_split_parts")
+"""The training settings that are the pipeline's own (``BoundVariant`` fields): what becomes of S's
+drawing where no source reached, and of the parts it split."""
+
+_KEYED_WHEN_OFF = frozenset({"parse_invented"})
+"""The options that were keyed before the others existed: the others are left out of a variant's key
+while off, so that the runs made before them keep their keys and resume."""
+
+
 def pipeline_options(training: TrainingConfig) -> tuple[tuple[str, bool], ...]:
-    """The training settings that are the pipeline's own (``BoundVariant`` fields): what S's drawing
-    where no source reached becomes."""
-    return (("parse_invented", training.parse_invented), ("describe_invented", training.describe_invented))
+    """:data:`PIPELINE_OPTIONS` with their values in ``training``."""
+    return tuple((name, getattr(training, name)) for name in PIPELINE_OPTIONS)
 
 
 def _unused_options(rv: ResolvedVariant, training: TrainingConfig) -> set[str]:
     """Pipeline options left out of a variant's key: one that cannot change its graphs, so that trying
-    it reuses the other variants; and describe_invented while off, so that the runs made before it
-    existed keep their keys and resume."""
-    applies = {"parse_invented": rv.variant.describes_carried_parts, "describe_invented": rv.variant.describes_before_synthesis}
-    return {name for name, on in pipeline_options(training) if not applies[name] or (name == "describe_invented" and not on)}
+    it reuses the other variants; and those of :data:`_KEYED_WHEN_OFF`'s complement while off."""
+    parser = rv.stages.get("parser")
+    applies = {
+        "parse_invented": rv.variant.describes_carried_parts,
+        "describe_invented": rv.variant.describes_before_synthesis,
+        "join_split_parts": rv.variant.carries_parts and parser is not None and parser.cls.regions_are_category_pieces,
+    }
+    return {name for name, on in pipeline_options(training) if not applies[name] or (name not in _KEYED_WHEN_OFF and not on)}
 
 
 def _fit_classifier(

@@ -259,6 +259,27 @@ class Regions:
         labels = lut[np.where(self.labels >= 0, self.labels, len(self))]
         return Regions(labels=labels, boxes=self.boxes[keep], **_take(self.attributes(), np.flatnonzero(keep)))
 
+    def merge(self, groups: np.ndarray) -> Regions:
+        """The regions joined by group: ``groups`` (``(K,)`` int) is each region's new index,
+        ``0..G-1`` with none left empty, or -1 to drop it.
+
+        A group's box is the union of its members' boxes (a synthesizer's boxes are not the masks'
+        own, so they are not recomputed); its optional attributes are its first member's.
+        """
+        groups = np.asarray(groups, dtype=np.int32)
+        count = int(groups.max(initial=-1)) + 1
+        kept = groups >= 0
+        if set(groups[kept].tolist()) != set(range(count)):
+            raise InputError(f"Regions.merge: groups must number 0..{count - 1} with none empty, got {groups.tolist()}")
+        lut = np.append(groups, -1)
+        labels = lut[np.where(self.labels >= 0, self.labels, len(self))]
+        boxes = np.full((count, 4), np.nan, dtype=np.float32)
+        with np.errstate(invalid="ignore"):
+            np.fmin.at(boxes[:, :2], groups[kept], self.boxes[kept, :2])
+            np.fmax.at(boxes[:, 2:], groups[kept], self.boxes[kept, 2:])
+        first = np.array([np.flatnonzero(groups == g)[0] for g in range(count)], dtype=np.intp)
+        return Regions(labels=labels, boxes=boxes, **_take(self.attributes(), first))
+
     def attributes(self) -> dict[str, np.ndarray | tuple[str, ...]]:
         """The optional per-region attributes this instance has (``PER_REGION`` names, present ones only)."""
         return {name: getattr(self, name) for name in self.PER_REGION if getattr(self, name) is not None}

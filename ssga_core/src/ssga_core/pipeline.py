@@ -30,6 +30,13 @@ has been parsed and described of it so far.
     no source pixel landed (its local features there join the carried ones); PDS, whose
     parts are fixed before S, first parses those pixels into parts of their own as above.
     The carried features and parts stay as the real view gave them.
+  - parts that S split: the real view's frame ends where the synthetic view goes on, so a
+    wall the query sees as one part arrives as a carried piece beside what S drew. With
+    ``join_split_parts``, an order that parses before S (PDS, PSD, ``Variant.carries_parts``)
+    with a parser whose regions are connected pieces of one category
+    (``Parser.regions_are_category_pieces``) joins the parts of one category that touch in
+    the synthetic view, as the parser would have cut it; and what S drew of a region that
+    is mostly carried (left out above) joins the carried part of its category it touches.
 
 At the end the graph is assembled: node 0 is the whole image (all local features, or
 the region descriptor's image feature), nodes 1..K the surviving parts; a part with no
@@ -103,6 +110,10 @@ class BoundVariant:
     describe_invented: bool = False
     """An order that describes before S (PDS, DSP, DS) also describes what S invented: see the
     module docstring. Off: the paper's reading, where only the real view's features are carried."""
+    join_split_parts: bool = False
+    """An order that parses before S (PDS, PSD), with a parser of category pieces, joins the touching
+    parts of one category after S: see the module docstring. Off: the paper's reading, where each
+    carried part stays one node."""
 
     def __post_init__(self) -> None:
         bound = {kind: type(stage) if (stage := getattr(self, kind)) is not None else None for kind in PIPELINE_KIND_NAMES}
@@ -164,11 +175,15 @@ def build_graph(
             for state, syn in zip(states, syntheses, strict=True):
                 state.synthesize(syn)
             states = [_join(states)]
+            join = bound.join_split_parts and bound.variant.carries_parts and bound.parser.regions_are_category_pieces  # type: ignore[union-attr]
+            optional = None
             if bound.parse_invented and bound.variant.describes_carried_parts:
                 assert bound.parser is not None
-                states[0].parse_invented(bound.parser)
+                optional = states[0].parse_invented(bound.parser, join)
             if bound.describe_invented and bound.variant.describes_before_synthesis:
-                states[0].describe_invented(bound.descriptor, bound.parser)
+                optional = states[0].describe_invented(bound.descriptor, bound.parser, join)
+            if join:
+                states[0].join_split_parts(optional)
             continue
         for state in states:
             if stage == "P":
@@ -384,24 +399,26 @@ class _State:
     def parse(self, parser: Parser) -> None:
         self.regions = self.memo.regions(parser, self.view) if self.memo else parser.parse(self.view)
 
-    def parse_invented(self, parser: Parser) -> None:
-        """Add parts for the drawn pixels no carried part covers (the module docstring)."""
+    def parse_invented(self, parser: Parser, join: bool) -> np.ndarray | None:
+        """Add parts for the drawn pixels no carried part covers (the module docstring); returns
+        which parts stay only if joined (:meth:`_add_invented_parts`)."""
         assert self.regions is not None and self.local is None and self.region_features is None
-        self._add_invented_parts(parser)
+        return self._add_invented_parts(parser, join)
 
-    def describe_invented(self, descriptor: Descriptor, parser: Parser | None) -> None:
+    def describe_invented(self, descriptor: Descriptor, parser: Parser | None, join: bool) -> np.ndarray | None:
         """Describe the drawn pixels no source pixel reached, after S, for an order that described
-        before it (the module docstring); with carried parts, parse them into parts first."""
+        before it (the module docstring); with carried parts, parse them into parts first, and return
+        which parts stay only if joined (:meth:`_add_invented_parts`)."""
         assert isinstance(descriptor, LocalDescriptor) and self.local is not None and self.reached is not None
         # A source pixel splats to one target pixel, so a stretched surface leaves gaps between its
         # splats: those are carried content, not invented, and a feature there is not added.
         invented = self.view.valid_depth() & ~_dilated(self.reached, INVENTED_MARGIN)
         if not invented.any():
-            return
-        carried_parts = len(self.regions) if self.regions is not None else 0
+            return None
+        optional = None
         if self.regions is not None:
             assert parser is not None
-            self._add_invented_parts(parser)
+            optional = self._add_invented_parts(parser, join)
         fresh = self.memo.local_features(descriptor, self.view) if self.memo else descriptor.extract(self.view)
         added = fresh.select(_pixel_at(invented, fresh.positions, False))
         self.local = LocalFeatures(
@@ -410,25 +427,64 @@ class _State:
         )
         if self.local_nodes is not None:  # parts fixed before S: an added feature belongs to an added part or none
             assert self.regions is not None
+            # Carried labels lie only where a source pixel landed, so a part here is an added one.
             nodes = _region_at(self.regions.labels, added.positions)
-            self.local_nodes = np.concatenate([self.local_nodes, np.where(nodes >= carried_parts, nodes, -1)]).astype(np.int32)
+            self.local_nodes = np.concatenate([self.local_nodes, nodes]).astype(np.int32)
+        return optional
 
-    def _add_invented_parts(self, parser: Parser) -> None:
+    def _add_invented_parts(self, parser: Parser, join: bool) -> np.ndarray:
+        """Add the regions of a fresh parse that are mostly invented, cut to the invented pixels;
+        with ``join``, the invented pixels of the other regions too, as parts that stay only if they
+        join a carried part (:meth:`join_split_parts`). Returns those parts' mask, ``(K,)`` bool."""
         assert self.regions is not None
         carried = self.regions
         invented = self.view.valid_depth() & (carried.labels < 0)
         if not invented.any():
-            return
+            return np.zeros(len(carried), bool)
         fresh = self.memo.regions(parser, self.view) if self.memo else parser.parse(self.view)
         labelled = fresh.labels >= 0
         area = np.bincount(fresh.labels[labelled], minlength=len(fresh))
         inside = np.bincount(fresh.labels[labelled & invented], minlength=len(fresh))
         # Mostly invented, so a region that is mainly carried content does not come back as a sliver.
-        mostly = np.append((inside > 0) & (2 * inside >= area), False)
-        taken = invented & mostly[np.where(labelled, fresh.labels, -1)]
+        mostly = (inside > 0) & (2 * inside >= area)
+        wanted = np.append(mostly | (join & (inside > 0)), False)
+        taken = invented & wanted[np.where(labelled, fresh.labels, -1)]
         added = Regions.from_labels(np.where(taken, fresh.labels, -1), fresh.categories)
+        present = np.flatnonzero(np.bincount(fresh.labels[taken], minlength=len(fresh)))  # from_labels' order
         labels = np.where(added.labels >= 0, added.labels + len(carried), carried.labels).astype(np.int32)
         self.regions = Regions.concatenate([carried, added], labels)
+        return np.concatenate([np.zeros(len(carried), bool), ~mostly[present]])
+
+    def join_split_parts(self, optional: np.ndarray | None) -> None:
+        """Join the parts of one category that touch (the module docstring); a part marked in
+        ``optional`` stays only in a group with a part that is not."""
+        regions = self.regions
+        assert regions is not None
+        if regions.categories is None:
+            raise InputError("join_split_parts: the parser says its regions are pieces of categories but gave no Regions.categories")
+        k = len(regions)
+        parent = list(range(k))
+
+        def root(a: int) -> int:
+            while parent[a] != a:
+                parent[a] = parent[parent[a]]
+                a = parent[a]
+            return a
+
+        for a, b in _touching_pairs(regions.labels, JOIN_REACH):
+            if regions.categories[a] == regions.categories[b]:
+                parent[root(a)] = root(b)
+        roots = np.array([root(a) for a in range(k)], dtype=np.int64)
+        optional = np.zeros(k, bool) if optional is None else optional
+        anchored = np.zeros(k, bool)
+        anchored[roots[~optional]] = True
+        kept_roots = [r for r in dict.fromkeys(roots.tolist()) if anchored[r]]  # in order of first member
+        lut = np.full(k, -1, dtype=np.int32)
+        lut[kept_roots] = np.arange(len(kept_roots), dtype=np.int32)
+        groups = lut[roots]
+        self.regions = regions.merge(groups)
+        if self.local_nodes is not None:
+            self.local_nodes = np.where(self.local_nodes >= 0, groups[np.clip(self.local_nodes, 0, None)], -1).astype(np.int32)
 
     def describe(self, descriptor: Descriptor) -> None:
         if isinstance(descriptor, LocalDescriptor):
@@ -505,6 +561,28 @@ def carry_regions(regions: Regions, syn: Synthesis) -> tuple[np.ndarray, Regions
 INVENTED_MARGIN = 2
 """Pixels: how far from every pixel a source reached a drawn pixel must be to count as invented
 (``describe_invented``): wider than the gaps a moderately stretched surface leaves between splats."""
+
+
+JOIN_REACH = 2
+"""Pixels: two parts this close touch (``join_split_parts``): the gaps a stretched surface leaves
+between its splats do not keep apart the pieces of one region."""
+
+
+def _touching_pairs(labels: np.ndarray, reach: int) -> list[tuple[int, int]]:
+    """The pairs of different labels ``>= 0`` within ``reach`` pixels of each other (a square), each once."""
+    h, w = labels.shape
+    k = int(labels.max(initial=-1)) + 1
+    seen = np.zeros(k * k, dtype=bool)  # pair (a, b), a < b, at a * k + b: marking is cheaper than np.unique
+    for dv in range(0, reach + 1):
+        for du in range(-reach, reach + 1):
+            if dv == 0 and du <= 0:  # each offset once: the other half is the same pairs reversed
+                continue
+            a = labels[: h - dv, max(-du, 0) : w - max(du, 0)]
+            b = labels[dv:, max(du, 0) : w - max(-du, 0)]
+            both = (a != b) & (a >= 0) & (b >= 0)
+            seen[np.minimum(a[both], b[both]).astype(np.int64) * k + np.maximum(a[both], b[both])] = True
+    codes = np.flatnonzero(seen)
+    return list(zip((codes // k).tolist(), (codes % k).tolist()))
 
 
 def _dilated(mask: np.ndarray, radius: int) -> np.ndarray:

@@ -85,6 +85,10 @@ class Parser(Stage):
     kind = "parser"
     consumes = frozenset({Data.RGB})
     produces = frozenset({Data.REGIONS})
+    regions_are_category_pieces: bool = False
+    """True when each region is one connected piece of one category (``Regions.categories``), as a
+    segmenter's: two touching regions of one category are then one region split apart, which is how
+    synthesis can leave them (``BoundVariant.join_split_parts``). False for superpixels and instances."""
 
     def parse(self, view: View) -> Regions:
         self._require(view)

@@ -87,6 +87,13 @@ class Variant:
         o = self.order
         return "S" in o and o.index("D") < o.index("S")
 
+    @property
+    def carries_parts(self) -> bool:
+        """Parses before S (PDS, PSD): the real view's parts are carried through synthesis, where
+        its frame's edge may cut one of them in two (``BoundVariant.join_split_parts``)."""
+        o = self.order
+        return "P" in o and "S" in o and o.index("P") < o.index("S")
+
     def kinds(self) -> list[str]:
         """The stage kinds this variant binds, in order of execution."""
         return [STAGE_KINDS[s] for s in self.order]

@@ -153,6 +153,7 @@ class CascadeSeg(Learned, Parser):
     name = "cascade-seg"
     abbrev = "SE"  # the paper's tables: "P-SE (PDS)"
     Config = CascadeSegConfig
+    regions_are_category_pieces = True  # one region per connected piece of a class (class_regions)
     reloaded = ("net",)
     layouts = LAYOUTS
     packaged_weights = WEIGHTS_DIR
