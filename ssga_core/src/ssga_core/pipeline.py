@@ -175,7 +175,8 @@ def build_graph(
             for state, syn in zip(states, syntheses, strict=True):
                 state.synthesize(syn)
             states = [_join(states)]
-            join = bound.join_split_parts and bound.variant.carries_parts and bound.parser.regions_are_category_pieces  # type: ignore[union-attr]
+            parser = bound.parser
+            join = bound.join_split_parts and bound.variant.carries_parts and parser is not None and parser.regions_are_category_pieces
             optional = None
             if bound.parse_invented and bound.variant.describes_carried_parts:
                 assert bound.parser is not None
