@@ -1,0 +1,1 @@
+"""ssga-descriptor-gist: where the edges run and where the colours lie, on a coarse grid."""
