@@ -248,7 +248,9 @@ def test_the_configs_in_docs_config_md_validate(tmp_path, ssga_installed_registr
     for name, body in blocks:
         (tmp_path / f"{name}.toml").write_text(body)
         labels[name] = [v.label for v in load_experiment(tmp_path / f"{name}.toml", ssga_installed_registry).variants]
-    assert labels["swap-all"][0] == "P-SL (PDS)" and all(label.startswith("P") for label in labels["swap-all"])
+    *swapped, own = labels["swap-all"]
+    assert swapped[0] == "P-SL (PDS)" and all(label.startswith("P") for label in swapped)
+    assert own == "GIST (SD2)", "a variant that binds its own descriptor keeps it"
     assert labels["swap-one"] == ["SIFT-SL (PDS)", "SIFT (DS)", "CNN"]
     assert labels["paper-on-my-scan"][0] == "CNN"
 
@@ -269,7 +271,9 @@ def test_ssga_variants_reads_configs_as_every_command_does(tmp_path, monkeypatch
     result = runner.invoke(app, ["variants", "--config", "mine.toml", "--json"])
     assert result.exit_code == 0, result.output
     rows = json.loads(result.output)
-    assert len(rows) == 8 and rows[0] == {"label": "SIFT-GT (PDS)", "variant": "PDS", "parser": "semantic", "descriptor": "dense-sift", "synthesizer": "depth-warp"}
+    assert len(rows) == 9 and rows[0] == {"label": "SIFT-GT (PDS)", "variant": "PDS", "parser": "semantic", "descriptor": "dense-sift", "synthesizer": "depth-warp"}
+    # A variant that names its own descriptor keeps it when the file swaps another stage.
+    assert rows[-1] == {"label": "GIST (SD2)", "variant": "SD2", "parser": None, "descriptor": "gist", "synthesizer": "depth-warp"}
     result = runner.invoke(app, ["variants", "--config", "nosuch"])
     assert result.exit_code != 0 and "nosuch: no such config file" in result.output
 
