@@ -214,7 +214,7 @@ def test_a_packaged_experiment_by_name_and_as_a_preset(tmp_path, ssga_installed_
     paper = load_experiment("paper", ssga_installed_registry)
     assert [v.label for v in paper.variants] == [
         "CNN", "P (DS)", "P (SD)", "P-SL (PDS)", "P-SL (PSD)", "P-SL (SPD1)", "P-SL (SPD2)",
-        "P-SE (PDS)", "P-SE (PSD)", "P-DE (PDS)", "P-DE (PSD)",
+        "P-SE (PDS)", "P-SE (PSD)", "P-DE (PDS)", "P-DE (PSD)", "GIST (SD2)",
     ]
     # On one's own workspace: the preset's rows and training, this file's workspace and protocol.
     (tmp_path / "mine.toml").write_text('preset = "paper"\noutput = "runs/mine"\n[workspace]\nname = "procedural"\nseed = 7\n[protocol]\ncells = 3\n')
