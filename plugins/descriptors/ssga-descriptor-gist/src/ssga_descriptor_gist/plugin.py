@@ -36,7 +36,7 @@ class GistConfig(StageConfig):
         default=0.5,
         ge=0.0,
         description="Weight of the colour layout beside the gradients (0: gradients only). Chosen on bench tuning "
-        "homes 0-1 of 0 / 0.5 / 1 (docs/experiments.md, 'A layout descriptor').",
+        "homes 0-1 of 0 / 0.5 / 1, by its sum with SIFT-SL (SPD)'s scores (docs/experiments.md, 'A layout descriptor').",
     )
     colour_grid: int = Field(default=8, ge=1, description="Cells per side of the colour layout (CIELAB, area-averaged).")
 
