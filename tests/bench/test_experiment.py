@@ -15,8 +15,10 @@ from ssga_bench.dataset_build import build_dataset
 from ssga_bench.experiment import Timings, Views, run_experiment, training_plan
 from ssga_bench.protocol import Protocol
 from ssga_bench.protocol import ProtocolConfig
+from ssga_bench.protocol_plan import level_of
 from ssga_bench.variant_training import _unused_options
 from ssga_bench.testing import WallWorkspaceSource
+from ssga_bench.visibility import view_overlap
 
 
 @pytest.fixture(scope="module")
@@ -83,6 +85,37 @@ def test_class_poses_belong_to_their_class_and_take_every_landmark_that_sees_the
         assert protocol.orientation_of(p.pose.yaw) == p.place % 12
         assert p.sources[0] == p.place // 12 and len(set(p.sources)) == len(p.sources) <= 3
     assert any(len(p.sources) > 1 for p in plan.pseudo)
+
+
+def _pose_levels(dataset, plan):
+    """Each class's pseudo-view levels, measured as its test views' are."""
+    protocol = Protocol(dataset.floor_plan, dataset.camera, dataset.plan.config)
+    targets = {s.place: s.pose for s in dataset.split("train") + dataset.split("target")}
+    polygons = protocol.level_reference_polygons(targets, [s.place for s in dataset.split("train")])
+    levels: dict[int, list[int]] = {}
+    for p in plan.pseudo:
+        vo = view_overlap(protocol.polygon(p.pose), polygons[p.place])
+        levels.setdefault(p.place, []).append(level_of(vo, dataset.plan.config.level_bounds))
+    return levels
+
+
+def test_poses_kept_for_the_rare_levels_are_at_them_and_the_classes_keep_their_count(dataset):
+    views = Views(dataset, Timings())
+    plain = _pose_levels(dataset, training_plan(dataset, TrainingConfig(poses="class", synthetic_per_class=9), views))
+    kept_plan = training_plan(dataset, TrainingConfig(poses="class", synthetic_per_class=9, synthetic_per_level=3), views)
+    kept = _pose_levels(dataset, kept_plan)
+    assert sorted(kept) == sorted(plain) and all(len(kept[place]) == len(plain[place]) == 9 for place in kept)
+    protocol = Protocol(dataset.floor_plan, dataset.camera, dataset.plan.config)
+    for p in kept_plan.pseudo:  # still poses of their own class
+        cell = protocol.assign(np.array([[p.pose.x, p.pose.y]]), np.array([p.pose.yaw]))[0]
+        assert dataset.plan.cells.index(cell) == p.place // 12 and protocol.orientation_of(p.pose.yaw) == p.place % 12
+
+    def rare(levels, level):
+        return sum(lv.count(level) for lv in levels.values())
+
+    # Drawn as test views are, most poses are at L1; the kept slots raise the rarer levels.
+    assert rare(kept, 2) + rare(kept, 3) > rare(plain, 2) + rare(plain, 3)
+    assert rare(kept, 3) > rare(plain, 3)
 
 
 def test_runs_fuses_reports_and_resumes(tmp_path, dataset, stand_in_registry, monkeypatch):

@@ -151,6 +151,14 @@ class TrainingConfig(Strict):
     )
     validation_fraction: float = Field(default=0.2, gt=0.0, lt=1.0, description="Share of training graphs held out for early stopping.")
     synthetic_per_class: int = Field(default=4, gt=0, le=1000, description="Pseudo-training graphs per class (variants with S).")
+    synthetic_per_level: int = Field(
+        default=0,
+        ge=0,
+        le=1000,
+        description="poses = 'class': of each class's synthetic_per_class poses, up to this many (at most a third) kept for "
+        "each of L2 and L3, the levels its test views have: drawn as test views are, 1-2% of poses are at L3 and most "
+        "classes get none like their L3 test views. 0: every pose drawn as test views are.",
+    )
     poses: Literal["class", "canonical"] = Field(
         default="class",
         description="Where pseudo-views stand: 'class' draws them over the region of poses that belong to the class, the "

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 
 import numpy as np
 import shapely
@@ -16,6 +16,10 @@ from ssga_core.geometry import Pose
 from ssga_bench.protocol_geometry import ProtocolGeometry
 from ssga_bench.protocol_plan import Sample, Split, level_of
 from ssga_bench.visibility import view_overlap, visibility_polygon
+
+
+RESERVE_TRIES = 20.0
+"""Candidates drawn per pseudo-view pose wanted while slots wait for the rare levels."""
 
 
 class ProtocolSampling(ProtocolGeometry):
@@ -87,9 +91,23 @@ class ProtocolSampling(ProtocolGeometry):
         distances = self.rays(xy, yaw)
         return xy, yaw, distances, self.assign(xy, yaw, distances)
 
-    def class_poses(self, cells: Sequence[int], per_class: int, height: float, rng: np.random.Generator) -> dict[int, list[Pose]]:
+    def class_poses(
+        self,
+        cells: Sequence[int],
+        per_class: int,
+        height: float,
+        rng: np.random.Generator,
+        per_level: int = 0,
+        level_polygons: Mapping[int, shapely.Polygon] | None = None,
+    ) -> dict[int, list[Pose]]:
         """``per_class`` poses of every class of ``cells`` (grid cells in class order), drawn
         over the region of poses that belong to the class, the way test views are drawn.
+
+        With ``per_level``, each class keeps that many of its poses for each of L2 and L3 (the
+        view overlap with the class's polygon in ``level_polygons``, the levels as its test
+        views have them): drawn as test views are, 1-2% of poses are at L3, so most classes would
+        have none like the L3 test views. The reserved slots wait while classes short of a level
+        are drawn around for up to ``RESERVE_TRIES`` candidates per pose wanted, then open to any pose.
 
         A class whose poses are too rare to find within ``max_candidates`` tries per pose
         wanted gets fewer (possibly none).
@@ -98,19 +116,52 @@ class ProtocolSampling(ProtocolGeometry):
         cells = list(cells)
         rank_of = {cell: rank for rank, cell in enumerate(cells)}
         poses: dict[int, list[Pose]] = {place: [] for place in range(len(cells) * c.orientations)}
+        levels = {place: np.zeros(4, dtype=int) for place in poses}
+        reserve = min(per_level, per_class // 3) if level_polygons is not None else 0
         wanted = per_class * len(poses)
+        reserve_tries = int(RESERVE_TRIES * wanted) if reserve else 0
+
+        def takes(place: int, level: int | None, reserving: bool) -> bool:
+            have = len(poses[place])
+            if have >= per_class:
+                return False
+            if not reserving or level is None:
+                return True
+            unmet = [max(reserve - levels[place][lv], 0) for lv in (2, 3)]
+            return (level in (2, 3) and unmet[level - 2] > 0) or per_class - have > sum(unmet)
+
         tried, batch = 0, 64
-        while sum(len(p) for p in poses.values()) < wanted and tried < wanted * c.max_candidates:
+        while sum(len(p) for p in poses.values()) < wanted and tried < wanted * c.max_candidates + reserve_tries:
+            reserving = tried < reserve_tries
             short = np.array([place // c.orientations for place, p in poses.items() if len(p) < per_class])
-            xy, yaw, _, cell = self._candidates(cells, lambda: rng.choice(short, size=batch), height, rng, batch)
+            xy, yaw, distances, cell = self._candidates(cells, lambda: rng.choice(short, size=batch), height, rng, batch)
             tried += batch
             orientation = self.orientation_of(yaw)
             for k in range(len(xy)):
-                if cell[k] in rank_of:
-                    place = rank_of[cell[k]] * c.orientations + int(orientation[k])
-                    if len(poses[place]) < per_class:
-                        poses[place].append(Pose(float(xy[k, 0]), float(xy[k, 1]), float(yaw[k]), height))
+                if cell[k] not in rank_of:
+                    continue
+                place = rank_of[cell[k]] * c.orientations + int(orientation[k])
+                if len(poses[place]) >= per_class:
+                    continue
+                pose = Pose(float(xy[k, 0]), float(xy[k, 1]), float(yaw[k]), height)
+                level = None
+                if reserve:
+                    seen = visibility_polygon(pose, self.camera.hfov_deg, distances[k])
+                    level = level_of(view_overlap(seen, level_polygons[place]), c.level_bounds)  # type: ignore[index]
+                if takes(place, level, reserving):
+                    poses[place].append(pose)
+                    if level is not None:
+                        levels[place][level] += 1
         return poses
+
+    def level_reference_polygons(self, training: Mapping[int, Pose], real_place: Sequence[int]) -> dict[int, shapely.Polygon]:
+        """The polygon each class's levels are measured against: its training viewpoint's
+        (``level_reference = "class"``) or its cell's real view's (``"landmark"``)."""
+        c = self.config
+        own = {place: self.polygon(pose) for place, pose in training.items()}
+        if c.level_reference == "class":
+            return own
+        return {place: own[real_place[place // c.orientations]] for place in own}
 
     def _sample_tests(
         self,

@@ -80,7 +80,8 @@ def training_plan(dataset: Dataset, config: TrainingConfig, views: Views) -> Tra
     """Each cell's real view, and the pose and source views of every class's pseudo-views, seeded.
 
     Poses (``config.poses``): ``"class"`` draws ``synthetic_per_class`` poses over the
-    region of poses of each class, as the protocol draws test views; ``"canonical"`` gives
+    region of poses of each class, as the protocol draws test views (keeping up to
+    ``synthetic_per_level`` of them for each of L2 and L3); ``"canonical"`` gives
     a class without a real view its training viewpoint and ``synthetic_per_class - 1``
     jittered copies (the real class: the jittered copies beside its real view).
 
@@ -99,7 +100,12 @@ def training_plan(dataset: Dataset, config: TrainingConfig, views: Views) -> Tra
     drawn: list[tuple[int, Pose, int]] = []  # (place, pose, group)
     if config.poses == "class":
         height = train[0].pose.height
-        for place, poses in sorted(protocol.class_poses(dataset.plan.cells, config.synthetic_per_class, height, rng).items()):
+        targets = {s.place: s.pose for s in train + dataset.split("target")}
+        level_polygons = protocol.level_reference_polygons(targets, [s.place for s in train]) if config.synthetic_per_level else None
+        class_poses = protocol.class_poses(
+            dataset.plan.cells, config.synthetic_per_class, height, rng, config.synthetic_per_level, level_polygons
+        )
+        for place, poses in sorted(class_poses.items()):
             drawn.extend([(place, pose, len(drawn) + i) for i, pose in enumerate(poses)])
     else:
         for group, s in enumerate(sorted(dataset.split("train") + dataset.split("target"), key=lambda s: s.place)):
