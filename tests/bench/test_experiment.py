@@ -8,6 +8,7 @@ import math
 import re
 
 import numpy as np
+import shapely
 import pytest
 
 from ssga_bench.config import TrainingConfig, validate_experiment
@@ -116,6 +117,16 @@ def test_poses_kept_for_the_rare_levels_are_at_them_and_the_classes_keep_their_c
     # Drawn as test views are, most poses are at L1; the kept slots raise the rarer levels.
     assert rare(kept, 2) + rare(kept, 3) > rare(plain, 2) + rare(plain, 3)
     assert rare(kept, 3) > rare(plain, 3)
+
+
+def test_a_level_no_pose_reaches_leaves_its_slots_to_any_pose(dataset):
+    # Measured against a far-off speck every pose overlaps nothing (L3): the L2 slots wait, then
+    # open, and each class still gets every pose it asked for.
+    protocol = Protocol(dataset.floor_plan, dataset.camera, dataset.plan.config)
+    speck = shapely.box(-1e3, -1e3, -1e3 + 0.01, -1e3 + 0.01)
+    places = range(len(dataset.plan.cells) * 12)
+    poses = protocol.class_poses(dataset.plan.cells, 3, 1.2, np.random.default_rng(0), per_level=1, level_polygons={p: speck for p in places})
+    assert sorted(poses) == list(places) and all(len(p) == 3 for p in poses.values())
 
 
 def test_runs_fuses_reports_and_resumes(tmp_path, dataset, stand_in_registry, monkeypatch):
