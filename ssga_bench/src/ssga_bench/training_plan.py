@@ -100,8 +100,11 @@ def training_plan(dataset: Dataset, config: TrainingConfig, views: Views) -> Tra
     drawn: list[tuple[int, Pose, int]] = []  # (place, pose, group)
     if config.poses == "class":
         height = train[0].pose.height
-        targets = {s.place: s.pose for s in train + dataset.split("target")}
-        level_polygons = protocol.level_reference_polygons(targets, [s.place for s in train]) if config.synthetic_per_level else None
+        level_polygons = None
+        if config.synthetic_per_level:
+            viewpoints = {s.place: s.pose for s in train + dataset.split("target")}
+            real_place = sorted(s.place for s in train)  # by cell rank: a cell's classes are rank * orientations + o
+            level_polygons = protocol.level_reference_polygons(viewpoints, real_place)
         class_poses = protocol.class_poses(
             dataset.plan.cells, config.synthetic_per_class, height, rng, config.synthetic_per_level, level_polygons
         )
