@@ -106,8 +106,8 @@ class ProtocolSampling(ProtocolGeometry):
         With ``per_level``, each class keeps that many of its poses for each of L2 and L3 (the
         view overlap with the class's polygon in ``level_polygons``, the levels as its test
         views have them): drawn as test views are, 1-2% of poses are at L3, so most classes would
-        have none like the L3 test views. The reserved slots wait while classes short of a level
-        are drawn around for up to ``RESERVE_TRIES`` candidates per pose wanted, then open to any pose.
+        have none like the L3 test views. The kept slots wait for up to ``RESERVE_TRIES``
+        candidates per pose wanted, then open to any pose, so each class keeps its count.
 
         A class whose poses are too rare to find within ``max_candidates`` tries per pose
         wanted gets fewer (possibly none).
@@ -145,7 +145,7 @@ class ProtocolSampling(ProtocolGeometry):
                     continue
                 pose = Pose(float(xy[k, 0]), float(xy[k, 1]), float(yaw[k]), height)
                 level = None
-                if reserve:
+                if reserving:  # levels matter only while slots are kept
                     seen = visibility_polygon(pose, self.camera.hfov_deg, distances[k])
                     level = level_of(view_overlap(seen, level_polygons[place]), c.level_bounds)  # type: ignore[index]
                 if takes(place, level, reserving):
