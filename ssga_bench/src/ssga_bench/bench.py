@@ -199,9 +199,11 @@ def _claims_lines(runs: dict[int, SeedRun], groups: Sequence[str] = ("L1", "L2",
                 continue
             cells += 1
             row = [str(s), g]
+            beats_nearest = True  # a run without a nearest-neighbour row is judged on the single variants alone
             if nearest is not None:
                 d = report.difference(report.ensemble, nearest, g)
                 lead += d.value >= NEAREST_LEAD
+                beats_nearest = d.value > 0
                 row.append(difference_text(d))
             else:
                 row.append("–")
@@ -210,7 +212,7 @@ def _claims_lines(runs: dict[int, SeedRun], groups: Sequence[str] = ("L1", "L2",
             above += behind[best].value >= 0
             if g in NEAR_LEVELS:
                 near_cells += 1
-                near_wins += behind[best].value >= 0 and (nearest is None or d.value > 0)
+                near_wins += behind[best].value >= 0 and beats_nearest
             not_below += all(d.value + d.half_width >= 0 for d in behind.values())
             row.append(f"{difference_text(behind[best])} ({best})")
             for a, b in pairs:
