@@ -307,3 +307,11 @@ def test_the_methods_claims_are_counted_cell_by_cell():
     # the ensemble (100 / 100 / 50) is 0 / 0 / -52 off it, the stacked row (the whole image, 50 / 50 / 100) -50 / -50 / -2.
     assert "| **Ensemble (RRF)** (the ensemble row) | 3 | 2 | -17.33 |" in md
     assert "| Ensemble (STK) of all, learned on validation | 3 | 1 | -34.00 |" in md
+    # A nearest neighbour that ties the ensemble at L1 and L2: still at or above every single variant there, not above it.
+    tied = Report.build(
+        "ws", {"SIFT-SL (PDS)": parts, "SIFT (DS)": whole}, truth, groups=groups, num_classes=3,
+        ensemble=("Ensemble (RRF)", parts), references={"nearest neighbour (SIFT-SL (PDS))": parts},
+    )  # fmt: skip
+    md = bench_summary({0: SeedRun(tied, {}, 1.0)})
+    assert "- the ensemble at or above every single variant: 2 of 3 (2 not below one beyond its interval)" in md
+    assert "- the ensemble at or above every single variant and above the nearest neighbour at L1 and L2: 0 of 2" in md
