@@ -315,3 +315,8 @@ def test_the_methods_claims_are_counted_cell_by_cell():
     md = bench_summary({0: SeedRun(tied, {}, 1.0)})
     assert "- the ensemble at or above every single variant: 2 of 3 (2 not below one beyond its interval)" in md
     assert "- the ensemble at or above every single variant and above the nearest neighbour at L1 and L2: 0 of 2" in md
+    # Over both seeds, a row per level gives each difference's mean, its interval across the seeds.
+    md = bench_summary({0: SeedRun(report, {}, 1.0), 1: SeedRun(tied, {}, 1.0)})
+    assert "| mean | L1 | +25.0 ±317.6 tie | +0.0 tie | +50.0 better |" in md
+    assert "| mean | L3 | -25.0 ±317.6 tie | -50.0 worse | -50.0 worse |" in md
+    assert "| mean |" not in bench_summary({0: SeedRun(report, {}, 1.0)})

@@ -18,7 +18,7 @@ from ssga_core.errors import InputError
 from ssga_core.variants import VariantSyntaxError, parse_variant
 from ssga_core.plugins import Registry
 from ssga_bench.config import Experiment, validate_experiment
-from ssga_bench.evaluation import LOCATION, LOCATION_NOTE, METRIC_TITLES, METRICS, THIN, Report, difference_text, seeds_estimate
+from ssga_bench.evaluation import LOCATION, LOCATION_NOTE, METRIC_TITLES, METRICS, THIN, Estimate, Report, difference_text, seeds_estimate
 from ssga_bench.execution import open_executor
 from ssga_bench.experiment import Progress, run
 from ssga_bench.io import atomic_write_bytes, write_json
@@ -182,7 +182,8 @@ def part_twins(labels: Sequence[str]) -> list[tuple[str, str]]:
 
 def _claims_lines(runs: dict[int, SeedRun], groups: Sequence[str] = ("L1", "L2", "L3")) -> list[str]:
     """Per seed and level: the ensemble against the nearest neighbour and against every single variant, and each
-    part-based variant against its twin without P; then how many cells hold each claim."""
+    part-based variant against its twin without P; with more than one seed, each difference's mean over the seeds per
+    level; then how many cells hold each claim."""
     seeds = sorted(runs)
     pairs = list(dict.fromkeys(p for s in seeds for p in part_twins(runs[s].report.variants)))
     columns = ["seed", "level", "ensemble − nearest neighbour", "ensemble − its best variant there", *(f"{a} − {b}" for a, b in pairs)]
@@ -191,6 +192,8 @@ def _claims_lines(runs: dict[int, SeedRun], groups: Sequence[str] = ("L1", "L2",
     near_wins = near_cells = 0
     parts_up = dict.fromkeys(pairs, 0)
     parts_cells = dict.fromkeys(pairs, 0)
+    # level -> column -> each seed's difference, for the rows of means
+    per_level: dict[str, dict[int, list[Estimate]]] = {g: {} for g in groups}
     for s in seeds:
         report = runs[s].report
         nearest = report.nearest_neighbour
@@ -199,12 +202,14 @@ def _claims_lines(runs: dict[int, SeedRun], groups: Sequence[str] = ("L1", "L2",
                 continue
             cells += 1
             row = [str(s), g]
+            seen = per_level[g]
             beats_nearest = True  # a run without a nearest-neighbour row is judged on the single variants alone
             if nearest is not None:
                 d = report.difference(report.ensemble, nearest, g)
                 lead += d.value >= NEAREST_LEAD
                 beats_nearest = d.value > 0
                 row.append(difference_text(d))
+                seen.setdefault(0, []).append(d)
             else:
                 row.append("–")
             behind = {v: report.compare(v, g) for v in report.variants}
@@ -215,7 +220,8 @@ def _claims_lines(runs: dict[int, SeedRun], groups: Sequence[str] = ("L1", "L2",
                 near_wins += behind[best].value >= 0 and beats_nearest
             not_below += all(d.value + d.half_width >= 0 for d in behind.values())
             row.append(f"{difference_text(behind[best])} ({best})")
-            for a, b in pairs:
+            seen.setdefault(1, []).append(behind[best])
+            for column, (a, b) in enumerate(pairs, start=2):
                 if a not in report.variants or b not in report.variants:
                     row.append("–")
                     continue
@@ -224,7 +230,15 @@ def _claims_lines(runs: dict[int, SeedRun], groups: Sequence[str] = ("L1", "L2",
                     parts_cells[a, b] += 1
                     parts_up[a, b] += d.value > 0
                 row.append(difference_text(d))
+                seen.setdefault(column, []).append(d)
             lines.append("| " + " | ".join(row) + " |")
+    if len(seeds) > 1:
+        # How large each claim is on the whole, with the spread a rerun on other seeds would see (as the table of means).
+        for g, seen in per_level.items():
+            if seen:
+                row = ["mean", g]
+                row += [difference_text(seeds_estimate(seen[c])) if c in seen else "–" for c in range(len(columns) - 2)]
+                lines.append("| " + " | ".join(row) + " |")
     lines += [
         "",
         f"- the ensemble {NEAREST_LEAD:g} points or more above the nearest neighbour: {lead} of {cells} (seed, level) cells"
@@ -364,7 +378,8 @@ def bench_summary(runs: dict[int, SeedRun]) -> str:
     lines += ["", "## The method's claims, seed by seed (MRR, percentage points, paired 95% interval)", ""]
     lines += [
         "Does fusing the variants beat each of them, and the nearest neighbour over the same features? Does parsing beat the "
-        "same order without it? Each cell is one seed's test views of one level.",
+        "same order without it? Each cell is one seed's test views of one level; a row \"mean\" averages the seeds' differences, "
+        "its interval across the seeds (the spread a rerun on other seeds would see).",
         "",
         *_claims_lines(runs),
         "",
