@@ -18,7 +18,7 @@ from ssga_core.errors import InputError
 from ssga_core.variants import VariantSyntaxError, parse_variant
 from ssga_core.plugins import Registry
 from ssga_bench.config import Experiment, validate_experiment
-from ssga_bench.evaluation import LOCATION, LOCATION_NOTE, METRIC_TITLES, METRICS, THIN, Estimate, Report, difference_text, seeds_estimate
+from ssga_bench.evaluation import HALVINGS, LOCATION, LOCATION_NOTE, METRIC_TITLES, METRICS, THIN, Estimate, Report, difference_text, seeds_estimate
 from ssga_bench.execution import open_executor
 from ssga_bench.experiment import Progress, run
 from ssga_bench.io import atomic_write_bytes, write_json
@@ -188,7 +188,7 @@ def _claims_lines(runs: dict[int, SeedRun], groups: Sequence[str] = ("L1", "L2",
     pairs = list(dict.fromkeys(p for s in seeds for p in part_twins(runs[s].report.variants)))
     columns = ["seed", "level", "ensemble − nearest neighbour", "ensemble − its best variant there", *(f"{a} − {b}" for a, b in pairs)]
     lines = ["| " + " | ".join(columns) + " |", "|---|---|" + "---:|" * (len(columns) - 2)]
-    lead = above = not_below = cells = 0
+    lead = above = not_below = above_other_half = cells = 0
     near_wins = near_cells = 0
     parts_up = dict.fromkeys(pairs, 0)
     parts_cells = dict.fromkeys(pairs, 0)
@@ -219,6 +219,7 @@ def _claims_lines(runs: dict[int, SeedRun], groups: Sequence[str] = ("L1", "L2",
                 near_cells += 1
                 near_wins += behind[best].value >= 0 and beats_nearest
             not_below += all(d.value + d.half_width >= 0 for d in behind.values())
+            above_other_half += report.against_chosen_on_other_half(g) >= 0
             row.append(f"{difference_text(behind[best])} ({best})")
             seen.setdefault(1, []).append(behind[best])
             for column, (a, b) in enumerate(pairs, start=2):
@@ -243,7 +244,8 @@ def _claims_lines(runs: dict[int, SeedRun], groups: Sequence[str] = ("L1", "L2",
         "",
         f"- the ensemble {NEAREST_LEAD:g} points or more above the nearest neighbour: {lead} of {cells} (seed, level) cells"
         + ("" if any(runs[s].report.nearest_neighbour for s in seeds) else " (no nearest-neighbour row)"),
-        f"- the ensemble at or above every single variant: {above} of {cells} ({not_below} not below one beyond its interval)",
+        f"- the ensemble at or above every single variant: {above} of {cells} ({not_below} not below one beyond its interval; "
+        f"{above_other_half} at or above the one chosen best on the other half of the cell's views, {HALVINGS} random halvings)",
         f"- the ensemble at or above every single variant and above the nearest neighbour at {' and '.join(NEAR_LEVELS)}: "
         f"{near_wins} of {near_cells}",
         f"- each part-based variant above its twin without P at {' and '.join(PART_LEVELS)}: "
