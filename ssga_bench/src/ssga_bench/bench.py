@@ -192,8 +192,8 @@ def _claims_lines(runs: dict[int, SeedRun], groups: Sequence[str] = ("L1", "L2",
     near_wins = near_cells = 0
     parts_up = dict.fromkeys(pairs, 0)
     parts_cells = dict.fromkeys(pairs, 0)
-    # level -> column -> each seed's difference, for the rows of means
-    per_level: dict[str, dict[int, list[Estimate]]] = {g: {} for g in groups}
+    # level -> column title -> each seed's difference, for the rows of means
+    per_level: dict[str, dict[str, list[Estimate]]] = {g: {} for g in groups}
     for s in seeds:
         report = runs[s].report
         nearest = report.nearest_neighbour
@@ -209,7 +209,7 @@ def _claims_lines(runs: dict[int, SeedRun], groups: Sequence[str] = ("L1", "L2",
                 lead += d.value >= NEAREST_LEAD
                 beats_nearest = d.value > 0
                 row.append(difference_text(d))
-                seen.setdefault(0, []).append(d)
+                seen.setdefault(columns[2], []).append(d)
             else:
                 row.append("–")
             behind = {v: report.compare(v, g) for v in report.variants}
@@ -221,8 +221,8 @@ def _claims_lines(runs: dict[int, SeedRun], groups: Sequence[str] = ("L1", "L2",
             not_below += all(d.value + d.half_width >= 0 for d in behind.values())
             above_other_half += report.against_chosen_on_other_half(g) >= 0
             row.append(f"{difference_text(behind[best])} ({best})")
-            seen.setdefault(1, []).append(behind[best])
-            for column, (a, b) in enumerate(pairs, start=2):
+            seen.setdefault(columns[3], []).append(behind[best])
+            for column, (a, b) in zip(columns[4:], pairs):
                 if a not in report.variants or b not in report.variants:
                     row.append("–")
                     continue
@@ -238,7 +238,7 @@ def _claims_lines(runs: dict[int, SeedRun], groups: Sequence[str] = ("L1", "L2",
         for g, seen in per_level.items():
             if seen:
                 row = ["mean", g]
-                row += [difference_text(seeds_estimate(seen[c])) if c in seen else "–" for c in range(len(columns) - 2)]
+                row += [difference_text(seeds_estimate(seen[c])) if c in seen else "–" for c in columns[2:]]
                 lines.append("| " + " | ".join(row) + " |")
     lines += [
         "",
