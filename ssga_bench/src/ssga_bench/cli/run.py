@@ -68,7 +68,7 @@ def demo_cli(
     workers: WorkersOption = None,
     address: AddressOption = None,
 ) -> None:
-    """The paper's eight variants, a layout member and their ensemble on a small embedded workspace (about two minutes on a 2-core laptop)."""
+    """The paper's eight variants, a layout member and their ensemble on a small embedded workspace (about three minutes on a 2-core laptop)."""
     start = time.perf_counter()
     _run(with_execution(load_experiment(packaged_config("demo.toml"), current_registry()), executor, workers, address), output)
     Console().print(f"demo finished in {time.perf_counter() - start:.0f} s")
