@@ -128,8 +128,9 @@ def test_workspace_build_and_show(tmp_path, stand_ins):
     args = ["workspace", "build", "--source", "test-wall", "--option", "size=8", "--cells", "2", "--test-per-class", "2", "--out", str(out)]
     result = runner.invoke(app, args)
     assert result.exit_code == 0, result.output
-    # 2 per class, then on (up to 4) while a level is short of the demo's 40: the test wall has no L3 views.
-    assert f"{out}: 24 classes, 2 real training views, 80 test views (L1 56, L2 24, L3 0)" in result.output
+    # 2 per class, then on (up to 4) while a level is short of the demo's 100: every level is, so the classes
+    # fill to their cap (the test wall has no L3 views).
+    assert f"{out}: 24 classes, 2 real training views, 96 test views (L1 86, L2 10, L3 0)" in result.output
     # A second build finds everything done; other settings are refused without --overwrite.
     assert runner.invoke(app, args).exit_code == 0
     result = runner.invoke(app, [*args[:-2], "--seed", "9", "--out", str(out)])
