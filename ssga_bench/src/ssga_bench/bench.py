@@ -363,7 +363,9 @@ def bench_summary(runs: dict[int, SeedRun]) -> str:
     reports = {s: runs[s].report for s in seeds}
     groups = list(dict.fromkeys(g for r in reports.values() for g in r.counts))
     interval = "95% t-interval across seeds" if len(seeds) > 1 else "one seed: 95% per-query intervals"
-    lines = [f"## Mean over seeds {', '.join(map(str, seeds))} (± {interval})", "", *_seed_table(runs), ""]
+    lines = [f"## Mean over seeds {', '.join(map(str, seeds))} (± {interval})", ""]
+    lines += [f"_Seed {s}: {note}_\n" for s, r in reports.items() for note in r.notes]  # e.g. a heading prior every row carries
+    lines += [*_seed_table(runs), ""]
     if all(r.has_location for r in reports.values()):
         lines += ["## Top-1 of the location (the first class at the right cell, whatever its heading)", "", LOCATION_NOTE, ""]
         lines += [*_seed_table(runs, (LOCATION,)), ""]

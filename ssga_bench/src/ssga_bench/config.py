@@ -238,6 +238,23 @@ class EnsembleConfig(Strict):
     )
 
 
+class PriorConfig(Strict):
+    """What every row's class scores are multiplied by before fusion and evaluation (ssga_bench.heading)."""
+
+    model_config = ConfigDict(allow_inf_nan=False)
+
+    heading: Literal["none", "manhattan"] = Field(
+        default="none",
+        description="'manhattan': a heading prior read from each view's straight horizontal edges (their vanishing point "
+        "gives the heading modulo 90 degrees against the room's directions, which the real views' known headings fix), "
+        "applied to every row alike; 'none': the paper's scores (docs/experiments.md, 'A heading prior from the room's lines').",
+    )
+    sigma_deg: float = Field(default=2.0, gt=0.0, le=45.0, description="How far, in degrees, a heading estimate may stray outside a class's window.")
+    mix: float = Field(
+        default=0.05, ge=0.0, le=1.0, description="Share of the prior spread over every class, so that a wrong estimate lowers the true class without ruling it out."
+    )
+
+
 class ExperimentConfig(VariantsConfig):
     """A whole experiment: where views come from, the variants and their stages, training, fusion."""
 
@@ -251,6 +268,7 @@ class ExperimentConfig(VariantsConfig):
     training: TrainingConfig = TrainingConfig()
     fuser: FuserRef | None = Field(default=None, description="The late-fusion rule [default: defaults.toml's].")  # type: ignore[valid-type]
     ensemble: EnsembleConfig = EnsembleConfig()
+    prior: PriorConfig = PriorConfig()
     execution: ExecutionConfig = Field(
         default=ExecutionConfig(), description="Where the independent work runs (serial, local processes, Ray); results do not depend on it."
     )

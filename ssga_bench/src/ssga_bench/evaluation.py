@@ -283,6 +283,8 @@ class Report:
     masks: dict[str, np.ndarray] = field(repr=False)
     not_run: dict[str, str] = field(default_factory=dict)
     """Variants that could not run (a checkpoint that is not there), with why: shown, never dropped."""
+    notes: tuple[str, ...] = ()
+    """What the reader must know of every row's scores (e.g. a heading prior they carry), shown under the title."""
 
     @classmethod
     def build(
@@ -549,7 +551,7 @@ class Report:
         return lines + [""]
 
     def markdown(self) -> str:
-        lines = [f"### {self.title}", "", *self._table(METRICS, self.levels)]
+        lines = [f"### {self.title}", "", *(f"_{note}_\n" for note in self.notes), *self._table(METRICS, self.levels)]
         lines += ["Test views: " + ", ".join(f"{g} {n}" for g, n in self.counts.items()), ""]
         if self.other_groups:
             lines += ["#### By group", "", *self._table(METRICS, [*self.other_groups, "all"])]
@@ -604,6 +606,7 @@ class Report:
                 for row in self.rows.values()
             ],
             "not_run": self.not_run,
+            "notes": list(self.notes),
             "ensemble_vs_variant_mrr": {v: {g: self.compare(v, g).to_json() for g in self.counts} for v in self.variants},
             "best_variant_per_view_mrr": {g: _finite(self.best_variant_per_view(g)) for g in self.counts},
             "shared_top1_hits": {a: {b: _finite(x) for b, x in row.items()} for a, row in self.shared_hits().items()},

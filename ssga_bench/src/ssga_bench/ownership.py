@@ -67,7 +67,8 @@ RUN = Marker(
     "ssga run",
     (
         "cache", "scoring", "variants", "oracle", "report.md", "results.csv", "results.png", "predictions.jsonl", "queries",
-        "protocol-fitted.json", "workspace.png", "scene-graphs", "fusion.json", "timings.json", "index.html",
+        "protocol-fitted.json", "workspace.png", "scene-graphs", "fusion.json", "heading.json", "timings.json",
+        "index.html",
     ),
     "--output",
     legacy=lambda out: _variants_trained(out) or _timings_written(out),

@@ -121,7 +121,7 @@ def write_run_page(out: Path) -> Path:
     scene graphs, timings); whatever is missing is left out. Returns its path."""
     report = (out / "report.md").read_text()
     title = report.splitlines()[0].lstrip("# ").strip() if report else out.name
-    files = _present(out, ["report.md", "results.csv", "results.png", "predictions.jsonl", "timings.json", "fusion.json", "protocol-fitted.json"])
+    files = _present(out, ["report.md", "results.csv", "results.png", "predictions.jsonl", "timings.json", "fusion.json", "heading.json", "protocol-fitted.json"])
     body = ["<nav>" + "".join(f'<a href="{f}">{f}</a>' for f in files) + "</nav>"]
     if (out / "protocol-fitted.json").is_file():
         fitted = json.loads((out / "protocol-fitted.json").read_text())

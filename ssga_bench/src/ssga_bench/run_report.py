@@ -5,8 +5,9 @@ run page's pictures and the protocol values the build fitted."""
 
 from __future__ import annotations
 
+import dataclasses
 import math
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 
 import numpy as np
@@ -40,9 +41,11 @@ def write_report(
     fusion: Fusion,
     not_run: Mapping[str, str],
     timings: Timings,
+    notes: Sequence[str] = (),
 ) -> Report:
     """Evaluate the variants' and the fused and reference rows' test scores and write the run's
-    report, results, predictions, drawn queries and page pictures into ``out``."""
+    report, results, predictions, drawn queries and page pictures into ``out``; ``notes`` go
+    under the report's title."""
     config = experiment.config
     labels, ensemble, best_single, references, series = fusion.labels, fusion.ensemble, fusion.best_single, fusion.references, fusion.series
     tests = dataset.split("test")
@@ -73,6 +76,7 @@ def write_report(
             series={label: name for label, name in series.items() if label in references or label == ensemble[0]},
             place_locations=dataset.place_cells,
         )
+        report = dataclasses.replace(report, notes=tuple(notes))
     with timings.phase("report"), timings.wall_phase("report"):
         atomic_write_bytes(out / "report.md", report.markdown().encode())
         atomic_write_bytes(out / "results.csv", report.csv().encode())
