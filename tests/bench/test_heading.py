@@ -137,6 +137,7 @@ def test_the_run_applies_the_prior_to_every_row_and_records_it(tmp_path, monkeyp
     report, _ = run_experiment(validate_experiment(config, registry), dataset, out)
     record = json.loads((out / "heading.json").read_text())
     assert record["frame_deg"] == pytest.approx(12.0, abs=1e-3) and record["real_views_read"] == len(dataset.split("train"))
+    assert record["validation_views_within_2_deg"] == record["validation_views_read"] == len(dataset.split("val"))
     assert set(record["estimates"]) == {s.id for split in ("train", "test", "val") for s in dataset.split(split)}
     assert "heading prior" in report.notes[0] and "heading prior" in (out / "report.md").read_text()
     headings = np.array([next(s.orientation for s in dataset.plan.samples if s.place == c) * 30.0 for c in range(dataset.num_classes)])

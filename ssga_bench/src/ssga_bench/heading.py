@@ -24,7 +24,8 @@ Three steps, all here, nothing learned:
 
 The prior multiplies every row's scores alike (variants, nearest neighbour, oracles; the
 fused rows fuse the members' multiplied scores), so the report's comparisons stay like for
-like. It reads nothing of the test views but their own pictures.
+like. It reads nothing of the test views but their own pictures (the validation views' known
+headings only say, in the run's note, how often the estimate is right on this scene).
 """
 
 from __future__ import annotations
@@ -51,12 +52,14 @@ MIN_LENGTH_PX = 12.0
 MAX_SLOPE_DEG = 75.0
 """Steeper segments on screen are the room's verticals, which meet the horizon nowhere useful."""
 HORIZON_MARGIN_PX = 8.0
-"""A segment whose middle lies this near the horizon row points at it along its length: its
-vanishing point is ill-conditioned."""
+"""A segment this near the horizon row (an edge at the camera's own height) lies almost along it:
+where it meets the horizon is ill-conditioned."""
 VOTE_SIGMA_DEG = 1.5
 """Each segment's vote is spread this wide, so near-parallel edges add up."""
 HEADING_RECORD = "heading.json"
 """The run folder's record of its heading prior: the settings, the room's frame, every view's estimate."""
+WITHIN_DEG = 2.0
+"""A validation view's estimate this near its true heading (modulo 90) counts as read right, in the run's note."""
 MIN_FRAME_AGREEMENT = 0.5
 """The real views' offsets must agree this well (mean resultant length of the angles times 4)
 for the room to have a frame."""
@@ -126,6 +129,10 @@ def home_frame(estimates: Sequence[float | None], yaws: Sequence[float]) -> Home
     return HomeFrame(offset_deg=(math.degrees(math.atan2(s, c)) / 4.0) % 90.0, agreement=agreement, views=len(offsets))
 
 
+def _apart_mod_90(a_deg: float, b_deg: float) -> float:
+    return abs((a_deg - b_deg + 45.0) % 90.0 - 45.0)
+
+
 def heading_prior(
     estimates: Sequence[float | None], frame: HomeFrame, class_headings_deg: np.ndarray, window_deg: float, sigma_deg: float, mix: float
 ) -> np.ndarray:
@@ -182,8 +189,8 @@ class HeadingPrior:
 
 
 def dataset_heading_prior(dataset: Dataset, config: PriorConfig, progress: Callable[[int, int], None] | None = None) -> HeadingPrior | None:
-    """The heading prior of ``dataset``'s test and validation views, or None (with why, in the
-    returned note's place: see :func:`no_frame_note`) where its real views give the room no frame."""
+    """The heading prior of ``dataset``'s test and validation views, or None where its real views
+    give the room no frame (the run then says :func:`no_frame_note`)."""
     real, tests, vals = dataset.split("train"), dataset.split("test"), dataset.split("val")
     views = [*real, *tests, *vals]
     estimates: list[float | None] = []
@@ -206,7 +213,12 @@ def dataset_heading_prior(dataset: Dataset, config: PriorConfig, progress: Calla
         return heading_prior(on, frame, headings, window, config.sigma_deg, config.mix)
 
     read = sum(e is not None for e in on_test)
+    # How far to trust it on this scene, told on the validation views' known headings (never the test views').
+    val_errors = [_apart_mod_90(e - frame.offset_deg, math.degrees(s.pose.yaw)) for s, e in zip(vals, on_val, strict=True) if e is not None]
+    within = sum(error <= WITHIN_DEG for error in val_errors)
     record |= {
+        "validation_views_read": len(val_errors),
+        f"validation_views_within_{WITHIN_DEG:g}_deg": within,
         "frame_deg": round(frame.offset_deg, 3),
         "frame_agreement": round(frame.agreement, 4),
         "real_views_read": frame.views,
@@ -215,7 +227,8 @@ def dataset_heading_prior(dataset: Dataset, config: PriorConfig, progress: Calla
     note = (
         f"Every row's scores carry the heading prior (`[prior] heading = \"manhattan\"`, sigma {config.sigma_deg:g} deg, mix {config.mix:g}): "
         f"the room's directions at {frame.offset_deg:.1f} deg (mod 90) from {frame.views} of {len(real)} real views "
-        f"(agreement {frame.agreement:.2f}); {read} of {len(tests)} test views read a heading (one that reads none gets a uniform prior)."
+        f"(agreement {frame.agreement:.2f}); {read} of {len(tests)} test views read a heading (one that reads none gets a uniform prior)"
+        + (f"; {within} of the {len(val_errors)} validation views that read one are within {WITHIN_DEG:g} deg of their true heading (mod 90)." if val_errors else ".")
     )
     return HeadingPrior(test=prior(on_test), val=prior(on_val), note=note, record=record)
 
