@@ -55,7 +55,7 @@ from ssga_bench.dataset_build import build_workspace
 from ssga_bench.evaluation import Report
 from ssga_bench.execution import Executor, open_executor
 from ssga_bench.fusion import fuse_variants
-from ssga_bench.heading import HEADING_RECORD, dataset_heading_prior, no_frame_note
+from ssga_bench.heading import with_heading_prior
 from ssga_bench.io import atomic_write_bytes, load_npz, npy_bytes, npz_bytes, warn, write_json
 from ssga_bench.ownership import RUN, claim_folder
 from ssga_bench.oracle import TrueRender
@@ -326,19 +326,8 @@ def run_experiment(
     if not results:
         raise SsgaError(f"no variant could run: {'; '.join(not_run.values())}")
 
-    notes: list[str] = []
-    (out / HEADING_RECORD).unlink(missing_ok=True)  # a rerun without the prior leaves no stale record
-    if config.prior.heading != "none":
-        # After the variants' scores are on disk, as they are: a rerun with other prior settings trains nothing.
-        with timings.phase("heading prior"), timings.wall_phase("heading prior"):
-            prior = dataset_heading_prior(dataset, config.prior, (lambda d, n: progress("heading prior", d, n)) if progress else None)
-        if prior is None:
-            notes.append(no_frame_note(dataset))
-            warn(notes[-1])
-        else:
-            write_json(out / HEADING_RECORD, prior.record)
-            results, oracle_results = prior.applied_to_all(results), prior.applied_to_all(oracle_results)
-            notes.append(prior.note)
+    # After the variants' scores are on disk, as they are: a rerun with other prior settings trains nothing.
+    results, oracle_results, notes = with_heading_prior(config.prior, dataset, out, results, oracle_results, timings, progress)
 
     fusion = fuse_variants(experiment, dataset, results, oracle_results, out, timings)
     report = write_report(experiment, dataset, cache, out, results, fusion, not_run, timings, notes)

@@ -34,13 +34,17 @@ import dataclasses
 import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from ssga_bench.io import warn, write_json
+from ssga_bench.timings import Timings
 from ssga_core.data import View
 from ssga_core.errors import InputError
 from ssga_core.geometry import Camera
+from ssga_core.pipeline import Progress
 
 if TYPE_CHECKING:
     from ssga_bench.config import PriorConfig
@@ -238,3 +242,27 @@ def no_frame_note(dataset: Dataset) -> str:
         f"No heading prior: `[prior] heading = \"manhattan\"` was asked, but the {len(dataset.split('train'))} real views of "
         f"{dataset.name} do not agree on the room's directions (straight horizontal edges too few or not square); scores as they are."
     )
+
+
+def with_heading_prior(
+    config: PriorConfig,
+    dataset: Dataset,
+    out: Path,
+    results: Mapping[str, VariantResult],
+    oracle_results: Mapping[str, VariantResult],
+    timings: Timings,
+    progress: Progress | None = None,
+) -> tuple[dict[str, VariantResult], dict[str, VariantResult], list[str]]:
+    """A run's variant and oracle results with the prior ``config`` asks for, and the notes its
+    report carries; writes ``out/heading.json`` (and removes a stale one when there is no prior)."""
+    (out / HEADING_RECORD).unlink(missing_ok=True)
+    if config.heading == "none":
+        return dict(results), dict(oracle_results), []
+    with timings.phase("heading prior"), timings.wall_phase("heading prior"):
+        prior = dataset_heading_prior(dataset, config, (lambda d, n: progress("heading prior", d, n)) if progress else None)
+    if prior is None:
+        note = no_frame_note(dataset)
+        warn(note)
+        return dict(results), dict(oracle_results), [note]
+    write_json(out / HEADING_RECORD, prior.record)
+    return prior.applied_to_all(results), prior.applied_to_all(oracle_results), [prior.note]
