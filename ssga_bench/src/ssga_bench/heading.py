@@ -204,7 +204,6 @@ def dataset_heading_prior(dataset: Dataset, config: PriorConfig, progress: Calla
             progress(n + 1, len(views))
     on_real, on_test, on_val = estimates[: len(real)], estimates[len(real) : len(real) + len(tests)], estimates[len(real) + len(tests) :]
     frame = home_frame(on_real, [s.pose.yaw for s in real])
-    record: dict[str, Any] = {"heading": config.heading, "sigma_deg": config.sigma_deg, "mix": config.mix}
     if frame is None:
         return None
     orientations = dataset.plan.config.orientations
@@ -220,7 +219,10 @@ def dataset_heading_prior(dataset: Dataset, config: PriorConfig, progress: Calla
     # How far to trust it on this scene, told on the validation views' known headings (never the test views').
     val_errors = [_apart_mod_90(e - frame.offset_deg, math.degrees(s.pose.yaw)) for s, e in zip(vals, on_val, strict=True) if e is not None]
     within = sum(error <= WITHIN_DEG for error in val_errors)
-    record |= {
+    record: dict[str, Any] = {
+        "heading": config.heading,
+        "sigma_deg": config.sigma_deg,
+        "mix": config.mix,
         "validation_views_read": len(val_errors),
         f"validation_views_within_{WITHIN_DEG:g}_deg": within,
         "frame_deg": round(frame.offset_deg, 3),
