@@ -96,20 +96,15 @@ def test_the_prior_multiplies_scores_keeping_each_views_order_when_they_are_not_
         apply_prior(np.zeros((2, 4)), prior)
 
 
-def test_the_run_applies_the_prior_to_every_row_and_records_it(tmp_path, monkeypatch, ssga_plugin_set):
-    from ssga_bench import testing
+def test_the_run_applies_the_prior_to_every_row_and_records_it(tmp_path, monkeypatch, stand_ins):
     from ssga_bench.config import validate_experiment
     from ssga_bench.dataset_build import build_dataset
     from ssga_bench.evaluation import truth_ranks
     from ssga_bench.experiment import run_experiment
     from ssga_bench.protocol import ProtocolConfig
     from ssga_bench.testing import WallWorkspaceSource
-    from ssga_core.testing import stages
 
-    ssga_plugin_set.load_entry_points()
-    ssga_plugin_set.register(stages, "stand-ins")
-    ssga_plugin_set.register(testing, "stand-in-workspaces")
-    registry = ssga_plugin_set.registry()
+    registry = stand_ins  # the stand-in stages and workspace, and the installed fusers (stacking)
     dataset = build_dataset(
         WallWorkspaceSource().open(), tmp_path / "ds", source={"name": "test-wall"}, protocol=ProtocolConfig(cells=2, test_per_class=2, val_per_class=2, seed=4)
     )

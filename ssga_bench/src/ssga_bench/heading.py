@@ -133,7 +133,8 @@ def home_frame(estimates: Sequence[float | None], yaws: Sequence[float]) -> Home
     return HomeFrame(offset_deg=(math.degrees(math.atan2(s, c)) / 4.0) % 90.0, agreement=agreement, views=len(offsets))
 
 
-def _apart_mod_90(a_deg: float, b_deg: float) -> float:
+def _apart_mod_90(a_deg: Any, b_deg: Any) -> Any:
+    """How far apart two headings are, modulo 90 degrees (numbers or arrays)."""
     return abs((a_deg - b_deg + 45.0) % 90.0 - 45.0)
 
 
@@ -153,7 +154,7 @@ def heading_prior(
         if estimate is None:
             continue
         heading = (estimate - frame.offset_deg) % 90.0
-        outside = np.maximum(np.abs((heading - centre + 45.0) % 90.0 - 45.0) - window_deg, 0.0)
+        outside = np.maximum(_apart_mod_90(heading, centre) - window_deg, 0.0)
         fit = np.exp(-0.5 * (outside / sigma_deg) ** 2)
         out[n] = (1.0 - mix) * fit / fit.sum() + mix / num_classes
     return out
