@@ -176,3 +176,13 @@ def test_boxes_from_labels_match_per_label_extremes():
             np.testing.assert_array_equal(boxes[k], [u.min(), v.min(), u.max(), v.max()])
         else:
             assert np.isnan(boxes[k]).all()
+
+def test_box_pixels_are_the_box_inclusive_at_least_two_by_two_and_inside_the_image():
+    from ssga_core import box_pixels
+
+    image = np.arange(20 * 30 * 2).reshape(20, 30, 2)
+    np.testing.assert_array_equal(box_pixels(image, np.array([3, 4, 10, 12], np.float32)), image[4:13, 3:11])
+    np.testing.assert_array_equal(box_pixels(image, np.array([2.4, 5.6, 7.2, 9.5], np.float32)), image[5:11, 2:9])  # widened to whole pixels
+    assert box_pixels(image, np.array([29, 19, 29, 19], np.float32)).shape == (2, 2, 2)  # one pixel, in the corner
+    assert box_pixels(image[..., 0], np.array([5, 5, 5, 5], np.float32)).shape == (2, 2)
+    np.testing.assert_array_equal(box_pixels(image, np.array([-3, -2, 40, 25], np.float32)), image)

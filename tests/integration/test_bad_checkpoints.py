@@ -22,7 +22,7 @@ from ssga_bench.testing import RunsCode
 from ssga_core import SsgaError, resolve_stage
 from ssga_core.cli import app_with_plugin_commands
 
-LEARNED = [("descriptor", "pnv"), ("descriptor", "cnn-rrf"), ("parser", "cascade-seg"), ("parser", "detic"), ("synthesizer", "midas-warp"), ("synthesizer", "synsin")]
+LEARNED = [("descriptor", "pnv"), ("descriptor", "cnn-rrf"), ("descriptor", "depth-layout"), ("parser", "cascade-seg"), ("parser", "detic"), ("synthesizer", "midas-warp"), ("synthesizer", "synsin")]
 
 
 def bad_file(kind: str, folder) -> str:

@@ -17,7 +17,7 @@ from importlib.metadata import PackageNotFoundError, version
 import pluggy
 
 from ssga_core.config import resolve_stage
-from ssga_core.data import Data, LocalFeatures, Regions, SceneGraph, Synthesis, View, boxes_from_labels
+from ssga_core.data import Data, LocalFeatures, Regions, SceneGraph, Synthesis, View, box_pixels, boxes_from_labels
 from ssga_core.errors import CheckpointError, ConfigError, InputError, MissingWeightsError, PluginError, SsgaError, VariantSyntaxError
 from ssga_core.geometry import Camera, Pose
 from ssga_core.kinds import KINDS, StageKind
@@ -74,6 +74,7 @@ __all__ = [
     "VariantSyntaxError",
     "View",
     "WorkspaceSource",
+    "box_pixels",
     "boxes_from_labels",
     "hookimpl",
     "lazy_exports",

@@ -170,6 +170,16 @@ def boxes_from_labels(labels: np.ndarray, count: int) -> np.ndarray:
     return boxes
 
 
+def box_pixels(image: np.ndarray, box: np.ndarray) -> np.ndarray:
+    """The pixels of ``image`` (``(H, W, ...)``) inside ``box`` (``[u0, v0, u1, v1]``, inclusive pixel centres, as
+    :attr:`Regions.boxes` has them), widened to at least 2 x 2 pixels and kept inside the image: a region's crop
+    for a descriptor that describes boxes."""
+    h, w = image.shape[:2]
+    u0, v0 = (int(np.clip(np.floor(x), 0, n - 2)) for x, n in ((box[0], w), (box[1], h)))
+    u1, v1 = (int(np.clip(np.ceil(x), lo + 1, n - 1)) for x, lo, n in ((box[2], u0, w), (box[3], v0, h)))
+    return image[v0 : v1 + 1, u0 : u1 + 1]
+
+
 @dataclass(frozen=True, eq=False)
 class Regions:
     """The regions a parser cut an image into: scene-graph part nodes.

@@ -25,7 +25,7 @@ import cv2
 import numpy as np
 from pydantic import Field
 
-from ssga_core import InputError, RegionDescriptor, Regions, StageConfig, View, hookimpl
+from ssga_core import InputError, RegionDescriptor, Regions, StageConfig, View, box_pixels, hookimpl
 
 
 class GistConfig(StageConfig):
@@ -53,7 +53,7 @@ class Gist(RegionDescriptor):
 
     def _describe(self, view: View, regions: Regions | None) -> np.ndarray:
         rgb = view.rgb
-        crops = [rgb] + ([_box(rgb, box) for box in regions.boxes] if regions is not None else [])
+        crops = [rgb] + ([box_pixels(rgb, box) for box in regions.boxes] if regions is not None else [])
         return np.stack([self.feature(crop) for crop in crops])
 
     def feature(self, rgb: np.ndarray) -> np.ndarray:
@@ -75,14 +75,6 @@ class Gist(RegionDescriptor):
             layout = cv2.resize(lab, (c.colour_grid, c.colour_grid), interpolation=cv2.INTER_AREA).reshape(-1)
             parts.append(c.colour * _unit(layout - layout.mean()))
         return _unit(np.concatenate(parts)).astype(np.float32)
-
-
-def _box(rgb: np.ndarray, box: np.ndarray) -> np.ndarray:
-    """The pixels of ``box`` (``[u0, v0, u1, v1]``, pixel centres), at least 2 x 2 and inside the image."""
-    h, w = rgb.shape[:2]
-    u0, v0 = (int(np.clip(np.floor(x), 0, n - 2)) for x, n in ((box[0], w), (box[1], h)))
-    u1, v1 = (int(np.clip(np.ceil(x), lo + 1, n - 1)) for x, lo, n in ((box[2], u0, w), (box[3], v0, h)))
-    return rgb[v0 : v1 + 1, u0 : u1 + 1]
 
 
 def _unit(x: np.ndarray) -> np.ndarray:
