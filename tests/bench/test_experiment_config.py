@@ -271,7 +271,7 @@ def test_ssga_variants_reads_configs_as_every_command_does(tmp_path, monkeypatch
     result = runner.invoke(app, ["variants", "--config", "mine.toml", "--json"])
     assert result.exit_code == 0, result.output
     rows = json.loads(result.output)
-    assert len(rows) == 9 and rows[0] == {"label": "SIFT-GT (PDS)", "variant": "PDS", "parser": "semantic", "descriptor": "dense-sift", "synthesizer": "depth-warp"}
+    assert len(rows) == 10 and rows[0] == {"label": "SIFT-GT (PDS)", "variant": "PDS", "parser": "semantic", "descriptor": "dense-sift", "synthesizer": "depth-warp"}
     # A variant that names its own descriptor keeps it when the file swaps another stage.
     assert rows[-1] == {"label": "GIST (SD2)", "variant": "SD2", "parser": None, "descriptor": "gist", "synthesizer": "depth-warp"}
     result = runner.invoke(app, ["variants", "--config", "nosuch"])
