@@ -135,3 +135,26 @@ def test_a_bad_config_or_image_is_refused(packaged):
 def _view_of(rgb: np.ndarray) -> View:
     h, w = rgb.shape[:2]
     return View(rgb=rgb, pose=Pose(0.0, 0.0, 0.0), camera=Camera(width=w, height=h))
+
+
+def test_the_evaluation_scores_a_network_that_sees_the_truth_as_perfect_and_a_wrong_one_below():
+    from ssga_descriptor_depth_layout.evaluate import layout_agreement
+
+    depth = np.stack([1.0 / _corner(c) for c in (8, 24, 40, 56)])
+    rgb = np.zeros((4, 64, 64, 3), np.uint8)
+    rgb[:, 0, 0, 0] = np.arange(4)  # each image says which depth it shows
+
+    class Sees:
+        def __init__(self, shift: int) -> None:
+            self.shift = shift
+
+        def predict(self, images):
+            return np.stack([1.0 / depth[(int(image[0, 0, 0]) + self.shift) % 4] for image in images])
+
+    descriptor = DepthLayout(DepthLayoutConfig(weights="random", device="cpu"))
+    descriptor.depth_network = Sees(0)
+    right = layout_agreement(descriptor, rgb, depth, np.zeros(4))
+    assert right["views"] == 4 and right["own_median"] == pytest.approx(1.0, abs=1e-5) and right["own_best_share"] == 1.0
+    descriptor.depth_network = Sees(1)  # every view given another's depth
+    wrong = layout_agreement(descriptor, rgb, depth, np.zeros(4))
+    assert wrong["own_mean"] < right["own_mean"] - 0.1 and wrong["own_best_share"] == 0.0

@@ -70,14 +70,11 @@ class DepthLayout(Learned, RegionDescriptor):
         """The ``(dim,)`` feature of an inverse depth map (or a box of one)."""
         g = self.config.grid
         cells = cv2.resize(depth, (g, g), interpolation=cv2.INTER_AREA).reshape(-1)
-        return _unit(cells - cells.mean()).astype(np.float32)
-
-
-def _unit(x: np.ndarray) -> np.ndarray:
-    norm = float(np.linalg.norm(x))
-    return x / norm if norm > 0 else x
+        centred = cells - cells.mean()
+        norm = float(np.linalg.norm(centred))  # 0 for a flat estimate: zeros, whose cosine with any feature is 0
+        return (centred / norm if norm > 0 else centred).astype(np.float32)
 
 
 @hookimpl
-def ssga_register_descriptors() -> list[type[Any]]:
+def ssga_register_descriptors() -> list[type[RegionDescriptor]]:
     return [DepthLayout]
