@@ -123,6 +123,13 @@ def test_random_weights_are_labelled_and_missing_weights_name_this_stages_field(
         DepthLayout(DepthLayoutConfig(weights=str(broken)))
 
 
+def test_a_run_on_other_views_than_the_networks_homes_says_so():
+    assert DepthLayout.out_of_domain(DepthLayoutConfig(), "procedural") == ""
+    note = DepthLayout.out_of_domain(DepthLayoutConfig(), "mesh")
+    assert "midas-light.pt" in note and "procedural" in note and "'mesh'" in note, note
+    assert DepthLayout.out_of_domain(DepthLayoutConfig(weights="random"), "mesh") == ""
+
+
 def test_a_bad_config_or_image_is_refused(packaged):
     for bad in ({"grid": 0}, {"network": "dpt"}, {"weights": ""}):
         with pytest.raises(ValidationError):

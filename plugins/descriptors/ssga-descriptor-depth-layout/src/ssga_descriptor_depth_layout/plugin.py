@@ -26,6 +26,7 @@ from pydantic import Field
 
 from ssga_bench import Learned, LearnedConfig, network_field, weights_field
 from ssga_core import CheckpointError, InputError, RegionDescriptor, Regions, View, box_pixels, hookimpl
+from ssga_synthesizer_midas_warp.plugin import WEIGHTS_DIR, MidasWarp, MidasWarpConfig
 
 
 class DepthLayoutConfig(LearnedConfig):
@@ -39,10 +40,11 @@ class DepthLayout(Learned, RegionDescriptor):
     abbrev = "DL"
     Config = DepthLayoutConfig
     reloaded = ("depth_network",)
+    # midas-warp's files: a run on another workspace than procedural homes says the light network never saw its like.
+    packaged_weights = WEIGHTS_DIR
+    trained_on = MidasWarp.trained_on
 
     def _load(self) -> Any:
-        from ssga_synthesizer_midas_warp.plugin import MidasWarp, MidasWarpConfig
-
         cfg: DepthLayoutConfig = self.config  # type: ignore[assignment]
         # The synthesizer's loading (official and packaged layouts, strict, one line on a bad file, once
         # per process); no calibration: the feature, centred and unit-length, ignores the scale and shift it would fix.
