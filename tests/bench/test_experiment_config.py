@@ -273,7 +273,10 @@ def test_ssga_variants_reads_configs_as_every_command_does(tmp_path, monkeypatch
     rows = json.loads(result.output)
     assert len(rows) == 10 and rows[0] == {"label": "SIFT-GT (PDS)", "variant": "PDS", "parser": "semantic", "descriptor": "dense-sift", "synthesizer": "depth-warp"}
     # A variant that names its own descriptor keeps it when the file swaps another stage.
-    assert rows[-1] == {"label": "GIST (SD2)", "variant": "SD2", "parser": None, "descriptor": "gist", "synthesizer": "depth-warp"}
+    assert rows[-2:] == [
+        {"label": "GIST (SD2)", "variant": "SD2", "parser": None, "descriptor": "gist", "synthesizer": "depth-warp"},
+        {"label": "DL (SD3)", "variant": "SD3", "parser": None, "descriptor": "depth-layout", "synthesizer": "depth-warp"},
+    ]
     result = runner.invoke(app, ["variants", "--config", "nosuch"])
     assert result.exit_code != 0 and "nosuch: no such config file" in result.output
 
