@@ -20,16 +20,16 @@ from typing import Any
 
 import numpy as np
 
+from ssga_core import Camera, Pose, View
+
 
 def layout_agreement(descriptor: Any, rgb: np.ndarray, depth: np.ndarray, homes: np.ndarray) -> dict[str, float]:
     """Cosines of each view's feature with its true depth's feature, and with the other views' of its home."""
-    from ssga_core import Camera, Pose, View
-
+    h, w = rgb.shape[1:3]
     own, others, best = [], [], []
     for home in np.unique(homes):
         index = np.flatnonzero(homes == home)
         truth = np.stack([descriptor.feature(1.0 / np.maximum(depth[i], 0.2)) for i in index])
-        h, w = rgb.shape[1:3]
         estimate = np.stack([descriptor.describe(View(rgb=rgb[i], pose=Pose(0.0, 0.0, 0.0), camera=Camera(width=w, height=h)), None)[0] for i in index])
         likeness = truth @ estimate.T
         own += list(np.diag(likeness))
