@@ -363,3 +363,68 @@ def test_a_coloured_bow_descriptor_meets_the_contract_in_every_order():
     coloured = _ColourBoW(_ColourConfig(bow=BoWConfig(k=8, prototypes=4), colour=0.5))
     check_descriptor(coloured)
     check_descriptor_in_all_orders(coloured)
+
+
+# --------------------------------------------------------------------------- words in place (spatial pyramid)
+
+
+def test_grid_cells_split_members_by_where_they_stand_in_their_box():
+    from ssga_bench.bow import grid_cells
+
+    positions = np.array([[0, 0], [10, 0], [0, 10], [10, 10], [4, 6], [np.nan, 1.0]])
+    cells = grid_cells(positions, np.arange(6), 2)
+    # u across, v down; a feature on the far edge is in the last cell, one with no position in none.
+    assert [c.tolist() for c in cells] == [[0], [1], [2, 4], [3]]
+    # The box is the members', not the image's: two features side by side fill the two top cells.
+    assert [c.tolist() for c in grid_cells(positions, np.array([0, 1]), 2)] == [[0], [1], [], []]
+    assert all(c.size == 0 for c in grid_cells(positions, np.array([], dtype=int), 3))
+
+
+def test_a_pyramid_keeps_the_node_beside_its_cells():
+    views = [make_view(seed=s) for s in range(3)]
+    plain = _ColourBoW(_ColourConfig(bow=BoWConfig(k=8, prototypes=4), colour=0.5))
+    pyramid = _ColourBoW(_ColourConfig(bow=BoWConfig(k=8, prototypes=4), colour=0.5, pyramid=2))
+    plain.fit(views)
+    pyramid.fit(views)
+    assert pyramid.dim == plain.dim * 5
+    local = pyramid.extract(views[0])
+    members = [np.arange(len(local)), np.array([], dtype=int)]
+    node, empty = pyramid.pool(local, members)
+    base = plain.pool(local, members)[0]
+    np.testing.assert_allclose(node[: plain.dim], np.sqrt(0.5) * base, atol=1e-6)
+    assert np.linalg.norm(node) == pytest.approx(1.0, abs=1e-5)  # every cell of a full grid holds features
+    np.testing.assert_array_equal(empty, 0)
+    check_descriptor(pyramid)
+    check_descriptor_in_all_orders(pyramid)
+
+
+def test_a_pyramid_tells_apart_the_same_words_standing_elsewhere():
+    views = [make_view(seed=s) for s in range(3)]
+    plain = _ColourBoW(_ColourConfig(bow=BoWConfig(k=8, prototypes=4)))
+    pyramid = _ColourBoW(_ColourConfig(bow=BoWConfig(k=8, prototypes=4), pyramid=2))
+    plain.fit(views)
+    pyramid.fit(views)
+    local = pyramid.extract(views[0])
+    width = views[0].camera.width
+    mirrored = LocalFeatures(positions=np.stack([width - 1 - local.positions[:, 0], local.positions[:, 1]], axis=1), descriptors=local.descriptors)
+    everything = [np.arange(len(local))]
+
+    def cosine(d, a, b):
+        return float(d.pool(a, everything)[0] @ d.pool(b, everything)[0])
+
+    assert cosine(plain, local, mirrored) == pytest.approx(1.0, abs=1e-6)  # a bag of words forgets where
+    assert cosine(pyramid, local, local) == pytest.approx(1.0, abs=1e-6)
+    assert cosine(pyramid, local, mirrored) < 0.99  # left and right swapped: the cells differ
+
+
+def test_a_setting_added_since_leaves_the_keys_of_earlier_runs_alone():
+    from ssga_bench.cache import stage_key
+    from ssga_descriptor_dense_sift.plugin import DenseSift, DenseSiftConfig
+
+    # The bench preset's dense SIFT, keyed as its runs were before `pyramid` existed (their cache folders).
+    assert stage_key(DenseSift(DenseSiftConfig(colour=0.75))) == "descriptor-dense-sift-e8d578c4b07a"
+    assert DenseSiftConfig().unkeyed() == {"pyramid", "pyramid_share"}
+    assert DenseSiftConfig(pyramid=2).unkeyed() == {"pyramid_share"}
+    assert stage_key(DenseSift(DenseSiftConfig(colour=0.75, pyramid=2))) != stage_key(DenseSift(DenseSiftConfig(colour=0.75)))
+    with pytest.raises(ValidationError):
+        DenseSiftConfig(pyramid=5)

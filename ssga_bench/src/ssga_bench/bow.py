@@ -153,6 +153,23 @@ def pool_rows(rows: np.ndarray, members: Sequence[np.ndarray], norm: Literal["l2
     return normalise_rows(out, norm)
 
 
+def grid_cells(positions: np.ndarray, members: np.ndarray, g: int) -> list[np.ndarray]:
+    """``members`` split by the cell of a ``g`` x ``g`` grid laid on their positions' bounding box
+    (row-major: ``u`` across, ``v`` down); a cell may be empty, and a feature with no position
+    (one a synthesizer's point map lost) is in none."""
+    members = np.asarray(members, dtype=np.intp)
+    p = np.asarray(positions, dtype=np.float64).reshape(-1, 2)[members]
+    placed = np.isfinite(p).all(axis=1)
+    members, p = members[placed], p[placed]
+    if members.size == 0:
+        return [members] * g**2
+    low, span = p.min(axis=0), np.ptp(p, axis=0)
+    # A feature on the box's far edge belongs to the last cell; a box of no extent is one cell.
+    at = np.minimum((g * (p - low) / np.where(span > 0, span, 1.0)).astype(np.intp), g - 1)
+    cell = at[:, 1] * g + at[:, 0]
+    return [members[cell == c] for c in range(g**2)]
+
+
 # --------------------------------------------------------------------------- dictionary
 
 
@@ -345,6 +362,22 @@ class BoWDescriptorConfig(LocalDescriptorConfig):
         "a window around it (CIELAB, 4 x 4 x 4 bins), a node pools its features' into one, and two nodes' cosine is "
         "(1 - colour) times their words' plus colour times their colours'. 0: the words alone.",
     )
+    pyramid: int = Field(
+        default=1,
+        ge=1,
+        le=4,
+        description="Cells per side of a spatial pyramid: 1, none; G > 1, a node's feature is its pooled words (and "
+        "colours) beside the same pooled over each cell of a G x G grid laid on its features' bounding box, so that "
+        "two nodes' cosine also asks where in them their words stand (docs/experiments.md, 'Words in place').",
+    )
+    pyramid_share: float = Field(
+        default=0.5,
+        gt=0.0,
+        lt=1.0,
+        description="With pyramid > 1, the share of a node's similarity given to its grid's cells (split equally among them).",
+    )
+
+    added_since: ClassVar[frozenset[str]] = frozenset({"pyramid", "pyramid_share"})
 
 
 class BoWDescriptor(LocalDescriptor):
@@ -372,7 +405,13 @@ class BoWDescriptor(LocalDescriptor):
 
     @property
     def dim(self) -> int:
-        return self.bow.dim + (COLOUR_DIM if self._colour > 0 else 0)
+        return (self.bow.dim + (COLOUR_DIM if self._colour > 0 else 0)) * (1 + self._pyramid**2)
+
+    @property
+    def _pyramid(self) -> int:
+        """Cells per side of the spatial pyramid, 0 for none."""
+        g = int(getattr(self.config, "pyramid", 1))
+        return g if g > 1 else 0
 
     @property
     def _colour(self) -> float:
@@ -433,11 +472,26 @@ class BoWDescriptor(LocalDescriptor):
             raise NotFittedError(
                 f"descriptor {self.name!r} is not fitted: call fit(training views) to learn its bag-of-words dictionary before pooling"
             )
-        words = self.bow.pool(self.bow.encode(self._words(features.descriptors)), members)
+        codes = self.bow.encode(self._words(features.descriptors))
+        nodes = self._pool_codes(codes, features.descriptors, members)
+        g = self._pyramid
+        if not g:
+            return nodes
+        cells = zip(*(grid_cells(features.positions, idx, g) for idx in members))  # per cell, its share of every node
+        share = float(self.config.pyramid_share)  # type: ignore[attr-defined]
+        # Each block at unit length (a non-empty one): the cosine of two nodes is (1 - share) times their own
+        # plus share times the mean of their cells' (a cell empty in either adds nothing).
+        return np.concatenate(
+            [math.sqrt(1 - share) * nodes] + [math.sqrt(share / g**2) * self._pool_codes(codes, features.descriptors, c) for c in cells],
+            axis=1,
+        )
+
+    def _pool_codes(self, codes: np.ndarray, descriptors: np.ndarray, members: Sequence[np.ndarray]) -> np.ndarray:
+        words = self.bow.pool(codes, members)
         share = self._colour
         if share <= 0:
             return words
-        colours = pool_rows(features.descriptors[:, -COLOUR_DIM:], members, "l2")
+        colours = pool_rows(descriptors[:, -COLOUR_DIM:], members, "l2")
         # Both halves at unit length, weighed so that the cosine of two nodes mixes the two cosines by `colour`.
         return np.concatenate([math.sqrt(1 - share) * words, math.sqrt(share) * colours], axis=1)
 

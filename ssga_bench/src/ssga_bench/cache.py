@@ -52,7 +52,7 @@ def view_key(view: View) -> str:
 
 def stage_key(stage: Stage | ResolvedStage) -> str:
     """The cache folder of a stage's entries: its kind, name and a hash of its config."""
-    config = stage.config.model_dump_json()
+    config = stage.config.model_dump_json(exclude=stage.config.unkeyed())
     return f"{stage.kind}-{stage.name}-{hashlib.blake2b(config.encode(), digest_size=6).hexdigest()}"
 
 

@@ -93,7 +93,7 @@ def variant_key(rv: ResolvedVariant, training: TrainingConfig, dataset: Dataset,
     spec = {
         "extra": extra,
         "variant": str(rv.variant),
-        "stages": {k: [s.cls.name, s.config.model_dump(mode="json")] for k, s in sorted(rv.stages.items())},
+        "stages": {k: [s.cls.name, s.config.model_dump(mode="json", exclude=s.config.unkeyed())] for k, s in sorted(rv.stages.items())},
         "training": training.model_dump(mode="json", exclude=_unused_options(rv, training)),
         "dataset": dataset.header,
         "plan": hashlib.blake2b((dataset.root / "plan.json").read_bytes(), digest_size=8).hexdigest(),

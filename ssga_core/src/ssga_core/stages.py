@@ -35,6 +35,16 @@ class StageConfig(BaseModel):
 
     model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
+    added_since: ClassVar[frozenset[str]] = frozenset()
+    """Fields added after runs were keyed by this config: while at their defaults they are left out
+    of the keys of caches and runs (:meth:`unkeyed`), so that the runs made before them keep their
+    keys and resume."""
+
+    def unkeyed(self) -> set[str]:
+        """The fields a key leaves out: those of :attr:`added_since` at their defaults."""
+        fields = type(self).model_fields
+        return {name for name in self.added_since if getattr(self, name) == fields[name].default}
+
 
 class Stage(ABC):
     """Common base: identity, config and declared data flow of a stage implementation."""
