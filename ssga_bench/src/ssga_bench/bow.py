@@ -478,7 +478,7 @@ class BoWDescriptor(LocalDescriptor):
         if not g:
             return nodes
         cells = zip(*(grid_cells(features.positions, idx, g) for idx in members))  # per cell, its share of every node
-        share = float(self.config.pyramid_share)  # type: ignore[attr-defined]
+        share = float(getattr(self.config, "pyramid_share", 0.5))
         # Each block at unit length (a non-empty one): the cosine of two nodes is (1 - share) times their own
         # plus share times the mean of their cells' (a cell empty in either adds nothing).
         return np.concatenate(

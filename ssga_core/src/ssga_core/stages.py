@@ -36,9 +36,9 @@ class StageConfig(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
     added_since: ClassVar[frozenset[str]] = frozenset()
-    """Fields added after runs were keyed by this config: while at their defaults they are left out
-    of the keys of caches and runs (:meth:`unkeyed`), so that the runs made before them keep their
-    keys and resume."""
+    """Fields of this config (not of a config nested in it) added after runs were keyed by it: while
+    at their defaults they are left out of the keys of caches and runs (:meth:`unkeyed`), so that
+    the runs made before them keep their keys and resume."""
 
     def unkeyed(self) -> set[str]:
         """The fields a key leaves out: those of :attr:`added_since` at their defaults."""
