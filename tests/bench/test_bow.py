@@ -245,8 +245,14 @@ class _ColourBoW(BoWDescriptor):
         return PatchColour()._extract(view)
 
 
-def _small() -> _ColourBoW:
-    return _ColourBoW(_ColourConfig(bow=BoWConfig(k=8, prototypes=4)))
+def _small(**config) -> _ColourBoW:
+    return _ColourBoW(_ColourConfig(bow=BoWConfig(k=8, prototypes=4), **config))
+
+
+def _fitted(views: list[View], **config) -> _ColourBoW:
+    d = _small(**config)
+    d.fit(views)
+    return d
 
 
 def test_a_bow_descriptor_meets_the_descriptor_contract():
@@ -336,10 +342,7 @@ def test_colour_windows_are_mirrored_at_the_border():
 
 def test_colour_mixes_the_cosines_of_words_and_colours():
     views = [make_view(seed=s) for s in range(4)]
-    plain = _ColourBoW(_ColourConfig(bow=BoWConfig(k=8, prototypes=4)))
-    coloured = _ColourBoW(_ColourConfig(bow=BoWConfig(k=8, prototypes=4), colour=0.3))
-    plain.fit(views)
-    coloured.fit(views)
+    plain, coloured = _fitted(views), _fitted(views, colour=0.3)
     a, b = coloured.extract(views[0]), coloured.extract(views[1])
     own = plain.extract(views[0])
     assert a.descriptors.shape == (len(own), own.descriptors.shape[1] + COLOUR_DIM) and coloured.dim == 8 + COLOUR_DIM
@@ -382,10 +385,7 @@ def test_grid_cells_split_members_by_where_they_stand_in_their_box():
 
 def test_a_pyramid_keeps_the_node_beside_its_cells():
     views = [make_view(seed=s) for s in range(3)]
-    plain = _ColourBoW(_ColourConfig(bow=BoWConfig(k=8, prototypes=4), colour=0.5))
-    pyramid = _ColourBoW(_ColourConfig(bow=BoWConfig(k=8, prototypes=4), colour=0.5, pyramid=2))
-    plain.fit(views)
-    pyramid.fit(views)
+    plain, pyramid = _fitted(views, colour=0.5), _fitted(views, colour=0.5, pyramid=2)
     assert pyramid.dim == plain.dim * 5
     local = pyramid.extract(views[0])
     members = [np.arange(len(local)), np.array([], dtype=int)]
@@ -400,10 +400,7 @@ def test_a_pyramid_keeps_the_node_beside_its_cells():
 
 def test_a_pyramid_tells_apart_the_same_words_standing_elsewhere():
     views = [make_view(seed=s) for s in range(3)]
-    plain = _ColourBoW(_ColourConfig(bow=BoWConfig(k=8, prototypes=4)))
-    pyramid = _ColourBoW(_ColourConfig(bow=BoWConfig(k=8, prototypes=4), pyramid=2))
-    plain.fit(views)
-    pyramid.fit(views)
+    plain, pyramid = _fitted(views), _fitted(views, pyramid=2)
     local = pyramid.extract(views[0])
     width = views[0].camera.width
     mirrored = LocalFeatures(positions=np.stack([width - 1 - local.positions[:, 0], local.positions[:, 1]], axis=1), descriptors=local.descriptors)
