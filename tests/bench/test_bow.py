@@ -14,6 +14,7 @@ from ssga_bench.bow import (
     BoWDescriptor,
     BoWDescriptorConfig,
     NotFittedError,
+    grid_cells,
     kmeans,
     normalise_rows,
     reciprocal_rank_votes,
@@ -372,8 +373,6 @@ def test_a_coloured_bow_descriptor_meets_the_contract_in_every_order():
 
 
 def test_grid_cells_split_members_by_where_they_stand_in_their_box():
-    from ssga_bench.bow import grid_cells
-
     positions = np.array([[0, 0], [10, 0], [0, 10], [10, 10], [4, 6], [np.nan, 1.0]])
     cells = grid_cells(positions, np.arange(6), 2)
     # u across, v down; a feature on the far edge is in the last cell, one with no position in none.
