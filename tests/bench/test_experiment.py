@@ -201,6 +201,21 @@ def test_parse_invented_retrains_only_the_orders_whose_parts_it_can_change(tmp_p
     assert {name for name in before if joined[name] != before[name]} == {"PC-ST_PSD", "PC-ST_PDS"}
 
 
+def test_a_training_setting_added_since_keeps_the_keys_of_earlier_runs(tmp_path, dataset, stand_in_registry, monkeypatch):
+    def keys(out, **training):
+        run_experiment(experiment(stand_in_registry, ("PSD", "SD"), classifier="graph-match", **training), dataset, out)
+        return {d.name: json.loads((d / "training.json").read_text())["key"] for d in (out / "variants").iterdir()}
+
+    plain = keys(tmp_path / "plain")
+    assert TrainingConfig().unkeyed() == {"match_whiten"}
+    whitened = keys(tmp_path / "whitened", match_whiten=1.0)
+    assert set(whitened) == set(plain) and all(whitened[k] != plain[k] for k in plain)
+    # The keys of a training section that never had the setting: what runs stored before it were keyed by.
+    dump = TrainingConfig.model_dump
+    monkeypatch.setattr(TrainingConfig, "model_dump", lambda self, **kw: {k: v for k, v in dump(self, **kw).items() if k != "match_whiten"})
+    assert keys(tmp_path / "before") == plain
+
+
 def test_an_interrupted_scoring_resumes_with_the_chunks_it_had_not_scored(tmp_path, dataset, stand_in_registry, monkeypatch):
     from ssga_bench import experiment as runner
 

@@ -368,3 +368,68 @@ def test_the_saved_state_scores_the_same_and_a_broken_one_is_refused():
         GraphMatcher.from_state({**state, "node_ptr": state["node_ptr"][:-1]})
     with pytest.raises(InputError, match="classes in 0..2"):
         GraphMatcher.from_state({**state, "labels": np.array([0, 1, 5])})
+
+
+def whole_only(features: np.ndarray) -> list[SceneGraph]:
+    return [graph(f) for f in features]
+
+
+def test_the_whole_image_whitened_is_the_rule_written_out():
+    rng = np.random.default_rng(3)
+    labels = np.repeat([0, 1, 2, 3], 6)
+    features = rng.normal(size=(len(labels), 8)) + 3 * rng.normal(size=(4, 8))[labels]
+    matcher = GraphMatcher.of(whole_only(features), labels, 4, whole_weight=1.0, whiten=0.5)
+    x = features / np.linalg.norm(features, axis=1, keepdims=True)
+    deviations = x - np.stack([x[labels == c].mean(0) for c in range(4)])[labels]
+    within = deviations.T @ deviations / len(x)
+    shrunk = within + 0.5 * np.trace(within) / 8 * np.eye(8)
+    # Whitened by the shrunk within-class covariance: (x - mean) W has that covariance's inverse for its Gram matrix.
+    mean, matrix = matcher._whitening
+    np.testing.assert_allclose(matrix @ matrix.T, np.linalg.inv(shrunk), rtol=1e-3, atol=1e-3)
+    query = rng.normal(size=8)
+    inverse_root = np.linalg.cholesky(np.linalg.inv(shrunk))  # any W with W W^T = inv(shrunk) gives the same cosines
+    a = (unit(query) - x.mean(0)) @ inverse_root
+    b = (x - x.mean(0)) @ inverse_root
+    expected = b @ a / np.linalg.norm(b, axis=1) / np.linalg.norm(a)
+    np.testing.assert_allclose(matcher.similarities(graph(query)), expected, atol=1e-5)
+
+
+def test_whitening_turns_down_what_varies_among_one_places_graphs():
+    # Two places told apart by a faint trait (axes 0 / 1); their pseudo-views vary widely along axes 2-3 (what synthesis
+    # guessed). A query of place 0 that shares a place-1 pseudo-view's guess looks most like that view to a plain cosine.
+    rng = np.random.default_rng(0)
+    labels = np.repeat([0, 1], 20)
+    trait = np.where(labels[:, None] == 0, [1.0, 0.0], [0.0, 1.0])
+    guess = rng.normal(size=(40, 2)) * 3
+    features = np.concatenate([trait, guess, np.full((40, 1), 2.0)], axis=1)
+    query = graph(np.concatenate([[1.0, 0.0], guess[25] + 0.1, [2.0]]))
+    plain = GraphMatcher.of(whole_only(features), labels, 2, whole_weight=1.0)
+    whitened = GraphMatcher.of(whole_only(features), labels, 2, whole_weight=1.0, whiten=0.1)
+    assert plain.predict([query]).argmax() == 1
+    assert whitened.predict([query]).argmax() == 0
+
+
+def test_whitening_needs_two_graphs_of_a_class_and_a_shrinkage_above_zero():
+    rng = np.random.default_rng(1)
+    train = whole_only(rng.normal(size=(3, 5)))
+    query = [graph(rng.normal(size=5))]
+    one_each = GraphMatcher.of(train, [0, 1, 2], 3, whole_weight=1.0, whiten=1.0)
+    np.testing.assert_array_equal(one_each.predict(query), GraphMatcher.of(train, [0, 1, 2], 3, whole_weight=1.0).predict(query))
+    for shrink in (0.0, -1.0, float("nan")):
+        with pytest.raises(InputError, match="whiten is a shrinkage"):
+            GraphMatcher.of(train, [0, 1, 2], 3, whole_weight=1.0, whiten=shrink)
+
+
+def test_a_whitened_matcher_saves_its_shrinkage_and_scores_the_same():
+    rng = np.random.default_rng(2)
+    train = [graph(*rng.random((1 + k % 3, 5))) for k in range(9)]
+    labels = [k % 3 for k in range(9)]
+    matcher = GraphMatcher.of(train, labels, 3, whole_weight=0.5, whiten=2.0)
+    query = [graph(*rng.random((3, 5)))]
+    again = GraphMatcher.from_state(matcher.state_dict())
+    assert again.whiten == 2.0
+    np.testing.assert_allclose(again.predict(query), matcher.predict(query), rtol=1e-6)
+    plain = GraphMatcher.of(train, labels, 3, whole_weight=0.5)
+    assert "whiten" not in plain.state_dict()  # a state saved before whitening existed (or without it) is plain
+    assert GraphMatcher.from_state(plain.state_dict()).whiten is None
+    assert not np.allclose(matcher.predict(query), plain.predict(query))

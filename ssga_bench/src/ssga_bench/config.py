@@ -28,7 +28,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any, ClassVar, Literal
 
 from pydantic import ConfigDict, Field, ValidationError
 
@@ -52,6 +52,7 @@ class TrainingConfig(Strict):
     """The per-variant GCN place classifier and its training data."""
 
     model_config = ConfigDict(allow_inf_nan=False)
+    added_since: ClassVar[frozenset[str]] = frozenset({"match_whiten"})
 
     classifier: Literal["gcn", "graph-match"] = Field(
         default="gcn",
@@ -113,6 +114,14 @@ class TrainingConfig(Strict):
         le=4.0,
         description="match_burst: a part with n repeats in its image (itself included) votes n ** -this (1: they share one "
         "vote; 0.5: the square root of their count).",
+    )
+    match_whiten: float | None = Field(
+        default=None,
+        gt=0.0,
+        le=1000.0,
+        description="classifier = 'graph-match': compare whole images after whitening them by the training graphs' "
+        "scatter within each class (what synthesis varies among one place's graphs counts less), the covariance shrunk "
+        "by this times its mean eigenvalue (the whole image whitened); unset: plain cosine, as the nearest-neighbour row.",
     )
     hidden: int = Field(default=256, gt=0, le=8192, description="Hidden width of the GCN.")
     layers: int = Field(default=2, ge=1, le=32, description="Graph-convolution layers.")

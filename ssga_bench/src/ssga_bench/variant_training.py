@@ -94,7 +94,7 @@ def variant_key(rv: ResolvedVariant, training: TrainingConfig, dataset: Dataset,
         "extra": extra,
         "variant": str(rv.variant),
         "stages": {k: [s.cls.name, s.config.model_dump(mode="json", exclude=s.config.unkeyed())] for k, s in sorted(rv.stages.items())},
-        "training": training.model_dump(mode="json", exclude=_unused_options(rv, training)),
+        "training": training.model_dump(mode="json", exclude=_unused_options(rv, training) | training.unkeyed()),
         "dataset": dataset.header,
         "plan": hashlib.blake2b((dataset.root / "plan.json").read_bytes(), digest_size=8).hexdigest(),
     }
@@ -141,6 +141,7 @@ def _fit_classifier(
             "match_drawn_prior": training.match_drawn_prior,
             "match_burst": training.match_burst,
             "match_burst_power": training.match_burst_power,
+            **({} if training.match_whiten is None else {"match_whiten": training.match_whiten}),
         }
         matcher = GraphMatcher.of(
             graphs,
@@ -154,6 +155,7 @@ def _fit_classifier(
             training.match_drawn_prior,
             training.match_burst,
             training.match_burst_power,
+            training.match_whiten,
         )
         atomic_write_bytes(folder / CLASSIFIER_FILES["graph-match"], npz_bytes(matcher.state_dict()))
         return rule

@@ -44,7 +44,7 @@ from ssga_core.errors import ConfigError, InputError, SsgaError
 from ssga_core.kinds import KINDS, PIPELINE_KIND_NAMES, kind_named
 from ssga_core.pipeline import BoundVariant, table_label
 from ssga_core.plugins import Registry
-from ssga_core.stages import Stage, StageConfig
+from ssga_core.stages import KeyedConfig, Stage, StageConfig
 from ssga_core.variants import Variant, check_binding, parse_variant
 
 
@@ -72,8 +72,9 @@ REF_TYPES: dict[str, type[StageRef]] = {
 }
 
 
-class Strict(BaseModel):
-    """Base of config sections: unknown keys are errors, instances are immutable."""
+class Strict(KeyedConfig):
+    """Base of config sections: unknown keys are errors, instances are immutable; a section that keys
+    stored runs (``[training]``) names its later settings in ``added_since`` as a stage's config does."""
 
     model_config = ConfigDict(extra="forbid", frozen=True)
 

@@ -28,12 +28,9 @@ from ssga_core.data import Data, LocalFeatures, Regions, Synthesis, View
 from ssga_core.errors import InputError
 from ssga_core.geometry import Pose
 
-class StageConfig(BaseModel):
-    """Base of every stage's config: unknown keys are errors, instances are immutable, and
-    numbers are finite (an ``inf`` room size or a ``nan`` threshold would validate and
-    then fail deep inside a library)."""
-
-    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
+class KeyedConfig(BaseModel):
+    """A config that keys stored work (a stage's cached features, a variant's stored run), and may
+    grow settings after that work exists."""
 
     added_since: ClassVar[frozenset[str]] = frozenset()
     """Fields of this config (not of a config nested in it) added after runs were keyed by it: while
@@ -44,6 +41,14 @@ class StageConfig(BaseModel):
         """The fields a key leaves out: those of :attr:`added_since` at their defaults."""
         fields = type(self).model_fields
         return {name for name in self.added_since if getattr(self, name) == fields[name].default}
+
+
+class StageConfig(KeyedConfig):
+    """Base of every stage's config: unknown keys are errors, instances are immutable, and
+    numbers are finite (an ``inf`` room size or a ``nan`` threshold would validate and
+    then fail deep inside a library)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
 
 class Stage(ABC):
