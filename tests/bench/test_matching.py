@@ -433,3 +433,29 @@ def test_a_whitened_matcher_saves_its_shrinkage_and_scores_the_same():
     assert "whiten" not in plain.state_dict()  # a state saved before whitening existed (or without it) is plain
     assert GraphMatcher.from_state(plain.state_dict()).whiten is None
     assert not np.allclose(matcher.predict(query), plain.predict(query))
+
+
+def test_whitened_parts_are_the_plain_part_match_of_the_whitened_parts():
+    rng = np.random.default_rng(4)
+    labels = [k % 3 for k in range(12)]
+    train = [graph(*rng.normal(size=(2 + k % 3, 6))) for k in range(12)]
+    query = graph(*rng.normal(size=(4, 6)))
+    matcher = GraphMatcher.of(train, labels, 3, whole_weight=0.0, layout_weight=0.5, whiten=1.0, whiten_parts=True)
+    mean, matrix = matcher._whitening
+    parts = np.concatenate([unit_rows(g.features[1:]) for g in train])
+
+    def moved(g):  # each part less the training parts' mean, whitened; the whole image as it was
+        return replace(g, features=np.concatenate([g.features[:1], (unit_rows(g.features[1:]) - parts.mean(0)) @ matrix]).astype(np.float32))
+
+    by_hand = GraphMatcher.of([moved(g) for g in train], labels, 3, whole_weight=0.0, layout_weight=0.5)
+    np.testing.assert_allclose(matcher.similarities(query), by_hand.similarities(moved(query)), atol=1e-5)
+    whole_only_whitened = GraphMatcher.of(train, labels, 3, whole_weight=0.0, layout_weight=0.5, whiten=1.0)
+    assert not np.allclose(matcher.similarities(query), whole_only_whitened.similarities(query))
+    again = GraphMatcher.from_state(matcher.state_dict())
+    assert again.whiten_parts
+    np.testing.assert_allclose(again.predict([query]), matcher.predict([query]), rtol=1e-6)
+
+
+def unit_rows(x):
+    x = np.asarray(x, np.float64)
+    return x / np.linalg.norm(x, axis=1, keepdims=True)

@@ -52,7 +52,7 @@ class TrainingConfig(Strict):
     """The per-variant GCN place classifier and its training data."""
 
     model_config = ConfigDict(allow_inf_nan=False)
-    added_since: ClassVar[frozenset[str]] = frozenset({"match_whiten"})
+    added_since: ClassVar[frozenset[str]] = frozenset({"match_whiten", "match_whiten_parts"})
 
     classifier: Literal["gcn", "graph-match"] = Field(
         default="gcn",
@@ -122,6 +122,11 @@ class TrainingConfig(Strict):
         description="classifier = 'graph-match': compare whole images after whitening them by the training graphs' "
         "scatter within each class (what synthesis varies among one place's graphs counts less), the covariance shrunk "
         "by this times its mean eigenvalue (the whole image whitened); unset: plain cosine, as the nearest-neighbour row.",
+    )
+    match_whiten_parts: bool = Field(
+        default=False,
+        description="match_whiten: compare the parts in the same whitened space as the whole images (each side's parts "
+        "less the training parts' mean); off: the parts' plain cosines.",
     )
     hidden: int = Field(default=256, gt=0, le=8192, description="Hidden width of the GCN.")
     layers: int = Field(default=2, ge=1, le=32, description="Graph-convolution layers.")

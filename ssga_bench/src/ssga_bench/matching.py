@@ -52,6 +52,9 @@ training graphs. A query graph is compared with every training graph:
   directions down against those that tell one class from another: the within-class
   normalisation of metric learning and of whitened retrieval (Jégou and Chum, ECCV 2012),
   fitted on the training graphs alone. The ``nearest neighbour`` reference row stays plain.
+  With ``whiten_parts`` the parts are compared in the same whitened space (each side's
+  parts less the training parts' mean); which parts of an image repeat one another is
+  still read on their plain cosines.
 
 The similarity of two graphs is ``whole_weight`` times the first plus the rest times the
 part match (the whole image alone where either graph has no part), and a class scores the
@@ -161,6 +164,7 @@ class GraphMatcher:
         burst: float | None = None,
         burst_power: float = 1.0,
         whiten: float | None = None,
+        whiten_parts: bool = False,
     ) -> None:
         node_ptr, labels = np.asarray(node_ptr, np.int64), np.asarray(labels, np.int64)
         if (
@@ -227,6 +231,10 @@ class GraphMatcher:
                     votes[start : start + count] *= burst_weights(self._parts[start : start + count], self.burst, self.burst_power)
             self._train_part_votes = votes
             self._train_vote_totals = np.maximum(np.add.reduceat(votes, self._part_starts), 1e-6)
+        # The parts as the match compares them: whitened as the whole images are, or plain.
+        self.whiten_parts = bool(whiten_parts) and whiten is not None
+        self._part_mean = self._parts.mean(axis=0) if self.whiten_parts and len(self._parts) else None
+        self._compared_parts = self._parts if self._part_mean is None else self._compared(self._parts)
 
     @classmethod
     def of(
@@ -243,18 +251,19 @@ class GraphMatcher:
         burst: float | None = None,
         burst_power: float = 1.0,
         whiten: float | None = None,
+        whiten_parts: bool = False,
     ) -> GraphMatcher:
         """The matcher of ``graphs``; ``weigh_drawn``: judge the query's parts where each graph was drawn, each graph's
         weighted mean starting from ``drawn_prior`` parts' worth of its plain mean; ``burst``: count the parts of an
         image above this cosine to one another as one repeated element (``burst_power``: how far); ``whiten``: whiten
-        the whole images by their scatter within each class, shrunk by this."""
+        the whole images by their scatter within each class, shrunk by this (``whiten_parts``: the parts too)."""
         node_ptr = np.concatenate([[0], np.cumsum([g.num_nodes for g in graphs])])
         features = _unit(np.concatenate([g.features for g in graphs])) if graphs else np.zeros((0, 1), np.float32)
         centres = np.concatenate([part_centres(g) for g in graphs]) if graphs else np.zeros((0, 2), np.float32)
         drawn = drawn_grids(graphs) if weigh_drawn else None
         return cls(
             features, centres, node_ptr, np.asarray(labels), num_classes, whole_weight, layout_weight, layout_sigma, standardise, drawn, drawn_prior,
-            burst, burst_power, whiten,
+            burst, burst_power, whiten, whiten_parts,
         )
 
     def state_dict(self) -> dict[str, np.ndarray]:
@@ -270,7 +279,7 @@ class GraphMatcher:
             "standardise": np.array(self.standardise),
             **({} if self.drawn is None else {"drawn": self.drawn, "drawn_prior": np.array(self.drawn_prior)}),
             **({} if self.burst is None else {"burst": np.array(self.burst), "burst_power": np.array(self.burst_power)}),
-            **({} if self.whiten is None else {"whiten": np.array(self.whiten)}),
+            **({} if self.whiten is None else {"whiten": np.array(self.whiten), "whiten_parts": np.array(self.whiten_parts)}),
         }
 
     @classmethod
@@ -292,6 +301,7 @@ class GraphMatcher:
                 float(state["burst"]) if "burst" in state else None,
                 float(state.get("burst_power", 1.0)),
                 float(state["whiten"]) if "whiten" in state else None,
+                bool(state.get("whiten_parts", False)),
             )
         except KeyError as exc:
             raise InputError(f"graph matcher: saved state without {exc}") from None
@@ -300,6 +310,12 @@ class GraphMatcher:
         """Unit-length whole-image rows in the whitened space (:func:`within_class_whitening`)."""
         mean, matrix = self._whitening  # type: ignore[misc]
         return _unit((np.atleast_2d(whole) - mean) @ matrix)
+
+    def _compared(self, parts: np.ndarray) -> np.ndarray:
+        """Parts as the match compares them: less the training parts' mean, whitened, unit length (with ``whiten_parts``)."""
+        if self._part_mean is None or self._whitening is None:
+            return parts
+        return _unit((parts - self._part_mean) @ self._whitening[1])
 
     def _in_place(self, centres: np.ndarray) -> np.ndarray:
         """``(parts, 4)`` rows whose products with ``self._train_in_place`` are ``-|c - t|^2 / (2 sigma^2)``, the
@@ -350,7 +366,7 @@ class GraphMatcher:
         parts = features[1:]
         if not len(parts) or not len(self._with_parts):
             return similarity
-        pairs = parts @ self._parts.T  # (query parts, every training part)
+        pairs = self._compared(parts) @ self._compared_parts.T  # (query parts, every training part)
         centres = part_centres(graph)[1:]
         weights = None if self._drawn_with_parts is None else self._drawn_share(self._drawn_with_parts, centres).T
         votes = None if self.burst is None else burst_weights(parts, self.burst, self.burst_power)

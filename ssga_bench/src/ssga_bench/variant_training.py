@@ -141,7 +141,7 @@ def _fit_classifier(
             "match_drawn_prior": training.match_drawn_prior,
             "match_burst": training.match_burst,
             "match_burst_power": training.match_burst_power,
-            **({} if training.match_whiten is None else {"match_whiten": training.match_whiten}),
+            **({} if training.match_whiten is None else {"match_whiten": training.match_whiten, "match_whiten_parts": training.match_whiten_parts}),
         }
         matcher = GraphMatcher.of(
             graphs,
@@ -156,6 +156,7 @@ def _fit_classifier(
             training.match_burst,
             training.match_burst_power,
             training.match_whiten,
+            training.match_whiten_parts,
         )
         atomic_write_bytes(folder / CLASSIFIER_FILES["graph-match"], npz_bytes(matcher.state_dict()))
         return rule
