@@ -306,16 +306,17 @@ class GraphMatcher:
         except KeyError as exc:
             raise InputError(f"graph matcher: saved state without {exc}") from None
 
-    def _whitened(self, whole: np.ndarray) -> np.ndarray:
-        """Unit-length whole-image rows in the whitened space (:func:`within_class_whitening`)."""
-        mean, matrix = self._whitening  # type: ignore[misc]
-        return _unit((np.atleast_2d(whole) - mean) @ matrix)
+    def _whitened(self, rows: np.ndarray, mean: np.ndarray | None = None) -> np.ndarray:
+        """Unit-length rows in the whitened space (:func:`within_class_whitening`), less ``mean`` (default: the whole
+        images' mean)."""
+        whole_mean, matrix = self._whitening  # type: ignore[misc]
+        return _unit((np.atleast_2d(rows) - (whole_mean if mean is None else mean)) @ matrix)
 
     def _compared(self, parts: np.ndarray) -> np.ndarray:
-        """Parts as the match compares them: less the training parts' mean, whitened, unit length (with ``whiten_parts``)."""
+        """Parts as the match compares them: less the training parts' mean, whitened (with ``whiten_parts``), or plain."""
         if self._part_mean is None or self._whitening is None:
             return parts
-        return _unit((parts - self._part_mean) @ self._whitening[1])
+        return self._whitened(parts, self._part_mean)
 
     def _in_place(self, centres: np.ndarray) -> np.ndarray:
         """``(parts, 4)`` rows whose products with ``self._train_in_place`` are ``-|c - t|^2 / (2 sigma^2)``, the
