@@ -207,7 +207,7 @@ def test_a_training_setting_added_since_keeps_the_keys_of_earlier_runs(tmp_path,
         return {d.name: json.loads((d / "training.json").read_text())["key"] for d in (out / "variants").iterdir()}
 
     plain = keys(tmp_path / "plain")
-    assert TrainingConfig().unkeyed() == {"match_whiten", "match_whiten_parts"}
+    assert TrainingConfig().unkeyed() == {"match_whiten", "match_whiten_parts", "match_whiten_variants"}
     whitened = keys(tmp_path / "whitened", match_whiten=1.0)
     assert set(whitened) == set(plain) and all(whitened[k] != plain[k] for k in plain)
     # The keys of a training section that never had the setting: what runs stored before it were keyed by.
@@ -215,6 +215,28 @@ def test_a_training_setting_added_since_keeps_the_keys_of_earlier_runs(tmp_path,
     later = TrainingConfig.added_since
     monkeypatch.setattr(TrainingConfig, "model_dump", lambda self, **kw: {k: v for k, v in dump(self, **kw).items() if k not in later})
     assert keys(tmp_path / "before") == plain
+
+
+def test_whitening_only_the_synthesized_views_retrains_only_the_variants_that_describe_them(tmp_path, dataset, stand_in_registry):
+    from ssga_bench.matching import GraphMatcher
+    from ssga_bench.variant_training import load_classifier
+
+    def run(out, **training):
+        run_experiment(experiment(stand_in_registry, ("PSD", "SD", "PDS", "DS"), classifier="graph-match", **training), dataset, out)
+        folders = {d.name: d for d in (out / "variants").iterdir()}
+        return {name: json.loads((d / "training.json").read_text())["key"] for name, d in folders.items()}, folders
+
+    plain, _ = run(tmp_path / "plain")
+    every, _ = run(tmp_path / "every", match_whiten=1.0)
+    synthesized, folders = run(tmp_path / "synthesized", match_whiten=1.0, match_whiten_variants="synthesized")
+    describe_after_s = {"PC-ST_PSD", "PC_SD"}
+    assert set(plain) == set(synthesized) == describe_after_s | {"PC-ST_PDS", "PC_DS"}
+    assert {name for name in plain if synthesized[name] != plain[name]} == describe_after_s
+    assert all(synthesized[name] != every[name] for name in describe_after_s)
+    for name, folder in folders.items():
+        matcher = load_classifier(folder, "graph-match")
+        assert isinstance(matcher, GraphMatcher)
+        assert (matcher.whiten is not None) == (name in describe_after_s), name
 
 
 def test_an_interrupted_scoring_resumes_with_the_chunks_it_had_not_scored(tmp_path, dataset, stand_in_registry, monkeypatch):

@@ -111,6 +111,14 @@ def test_only_orders_that_parse_before_s_and_describe_after_it_describe_carried_
     assert carried == ["PSD"]
 
 
+def test_synthesis_comes_before_or_after_description_in_every_order_with_s():
+    after = {order for order in all_orders() if parse_variant(order).describes_synthesized_views}
+    before = {order for order in all_orders() if parse_variant(order).describes_before_synthesis}
+    assert {"SPD", "PSD", "SD"} <= after and {"PDS", "DSP", "DS"} <= before
+    assert not after & before
+    assert after | before == {order for order in all_orders() if "S" in order}
+
+
 def test_requirements_follow_the_order():
     assert requirements("SPD") == {"parser": {}, "descriptor": {}, "synthesizer": {}}
     assert set(requirements("DSP")["descriptor"]) == {Data.LOCAL_FEATURES}

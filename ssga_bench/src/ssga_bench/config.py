@@ -52,7 +52,7 @@ class TrainingConfig(Strict):
     """The per-variant GCN place classifier and its training data."""
 
     model_config = ConfigDict(allow_inf_nan=False)
-    added_since: ClassVar[frozenset[str]] = frozenset({"match_whiten", "match_whiten_parts"})
+    added_since: ClassVar[frozenset[str]] = frozenset({"match_whiten", "match_whiten_parts", "match_whiten_variants"})
 
     classifier: Literal["gcn", "graph-match"] = Field(
         default="gcn",
@@ -127,6 +127,13 @@ class TrainingConfig(Strict):
         default=False,
         description="match_whiten: compare the parts in the same whitened space as the whole images (each side's parts "
         "less the training parts' mean); off: the parts' plain cosines.",
+    )
+    match_whiten_variants: Literal["all", "synthesized"] = Field(
+        default="all",
+        description="match_whiten: the variants it whitens: 'all', or 'synthesized', only those whose descriptor sees "
+        "the synthetic views (S before D: SPD, PSD, SD), where what varies among one place's graphs is what S drew; "
+        "those that carry the real view's own features through S (PDS, DSP, DS) and those without S stay plain, "
+        "and keep their keys.",
     )
     hidden: int = Field(default=256, gt=0, le=8192, description="Hidden width of the GCN.")
     layers: int = Field(default=2, ge=1, le=32, description="Graph-convolution layers.")

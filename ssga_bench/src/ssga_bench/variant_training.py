@@ -94,7 +94,7 @@ def variant_key(rv: ResolvedVariant, training: TrainingConfig, dataset: Dataset,
         "extra": extra,
         "variant": str(rv.variant),
         "stages": {k: [s.cls.name, s.config.model_dump(mode="json", exclude=s.config.unkeyed())] for k, s in sorted(rv.stages.items())},
-        "training": training.model_dump(mode="json", exclude=_unused_options(rv, training) | training.unkeyed()),
+        "training": training.model_dump(mode="json", exclude=_unused_options(rv, training) | _unused_whitening(rv, training) | training.unkeyed()),
         "dataset": dataset.header,
         "plan": hashlib.blake2b((dataset.root / "plan.json").read_bytes(), digest_size=8).hexdigest(),
     }
@@ -127,10 +127,27 @@ def _unused_options(rv: ResolvedVariant, training: TrainingConfig) -> set[str]:
     return {name for name, on in pipeline_options(training) if not applies[name] or (name not in _KEYED_WHEN_OFF and not on)}
 
 
+WHITENING = ("match_whiten", "match_whiten_parts", "match_whiten_variants")
+"""The settings of the whole image whitened in graph matching."""
+
+
+def whitens(rv: ResolvedVariant, training: TrainingConfig) -> bool:
+    """Whether graph matching whitens this variant's features (``match_whiten``, ``match_whiten_variants``)."""
+    wanted = training.match_whiten is not None
+    return wanted and (training.match_whiten_variants == "all" or rv.variant.describes_synthesized_views)
+
+
+def _unused_whitening(rv: ResolvedVariant, training: TrainingConfig) -> set[str]:
+    """The whitening settings, left out of the key of a variant ``match_whiten_variants`` leaves plain: trying
+    it retrains only the variants it whitens."""
+    return set(WHITENING) if training.match_whiten is not None and not whitens(rv, training) else set()
+
+
 def _fit_classifier(
     graphs: Sequence[SceneGraph], labels: Sequence[int], groups: np.ndarray, num_classes: int, training: TrainingConfig, folder: Path
 ) -> dict[str, Any]:
-    """Fit the variant's classifier (``training.classifier``) and save it in ``folder``; returns its training record."""
+    """Fit the variant's classifier (``training.classifier``, its whitening already settled for the variant: :func:`whitens`)
+    and save it in ``folder``; returns its training record."""
     if training.classifier == "graph-match":
         rule = {
             "match_whole": training.match_whole,
@@ -439,7 +456,10 @@ def finish_variant(job: FinishJob) -> VariantOutcome:
     labels = [*prepared.labels, *(p.place for p in plan.pseudo)] if job.pseudo else list(prepared.labels)
     groups = plan.groups(len(prepared.graphs), bool(job.pseudo))
     with timings.phase("train"):
-        fitted = _fit_classifier(graphs, labels, groups, dataset.num_classes, variant_job.training, folder)
+        training = variant_job.training
+        if not whitens(variant_job.variant, training):
+            training = training.model_copy(update={"match_whiten": None})
+        fitted = _fit_classifier(graphs, labels, groups, dataset.num_classes, training, folder)
     atomic_write_bytes(folder / "nearest.npz", npz_bytes({"features": whole_image_features(graphs), "labels": np.asarray(labels, np.int64)}))
     record = {"key": prepared.key, "label": prepared.label, "graphs": len(graphs), "classifier": variant_job.training.classifier, **fitted}
     write_json(folder / "training.json", record)  # last: the folder is a trained variant once it is there

@@ -88,6 +88,13 @@ class Variant:
         return "S" in o and o.index("D") < o.index("S")
 
     @property
+    def describes_synthesized_views(self) -> bool:
+        """Synthesizes before it describes (SPD, PSD, SD): its descriptor sees the synthetic views
+        themselves, so what differs among one place's pseudo-views is what S drew differently."""
+        o = self.order
+        return "S" in o and o.index("S") < o.index("D")
+
+    @property
     def carries_parts(self) -> bool:
         """Parses before S (PDS, PSD): the real view's parts are carried through synthesis, where
         its frame's edge may cut one of them in two (``BoundVariant.join_split_parts``)."""
