@@ -128,13 +128,12 @@ def _unused_options(rv: ResolvedVariant, training: TrainingConfig) -> set[str]:
 
 
 WHITENING = ("match_whiten", "match_whiten_parts", "match_whiten_variants")
-"""The settings of the whole image whitened in graph matching."""
+"""The settings of graph matching's within-class whitening (whole images, parts, which variants)."""
 
 
 def whitens(rv: ResolvedVariant, training: TrainingConfig) -> bool:
     """Whether graph matching whitens this variant's features (``match_whiten``, ``match_whiten_variants``)."""
-    wanted = training.match_whiten is not None
-    return wanted and (training.match_whiten_variants == "all" or rv.variant.describes_synthesized_views)
+    return training.match_whiten is not None and (training.match_whiten_variants == "all" or rv.variant.describes_synthesized_views)
 
 
 def _unused_whitening(rv: ResolvedVariant, training: TrainingConfig) -> set[str]:
