@@ -1,0 +1,83 @@
+"""scripts/preset_rule.py: two bench outputs read by the rule the presets' changes are decided by."""
+
+from __future__ import annotations
+
+import csv
+import importlib.util
+import sys
+from pathlib import Path
+
+import pytest
+
+SCRIPT = Path(__file__).resolve().parents[2] / "scripts" / "preset_rule.py"
+
+
+@pytest.fixture(scope="module")
+def preset_rule():
+    spec = importlib.util.spec_from_file_location("preset_rule", SCRIPT)
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module  # its dataclass looks its module up there
+    try:
+        spec.loader.exec_module(module)
+        yield module
+    finally:
+        del sys.modules[spec.name]
+
+
+def write_run(folder: Path, seed: int, mrr: dict[str, tuple[float, float, float]]) -> None:
+    """A seed's results.csv with each row's MRR at L1 / L2 / L3 (and an `all` row the rule must ignore)."""
+    kinds = {"Ensemble (STK)": "ensemble", "nearest neighbour (SIFT (SD))": "reference", "random": "random"}
+    (folder / f"seed-{seed}").mkdir(parents=True)
+    with (folder / f"seed-{seed}" / "results.csv").open("w", newline="") as f:
+        writer = csv.writer(f)
+        writer.writerow(["row", "kind", "group", "n", "mrr"])
+        for row, values in mrr.items():
+            for group, value in zip(("L1", "L2", "L3", "all"), (*values, 0.0)):
+                writer.writerow([row, kinds.get(row, "variant"), group, 100, value])
+
+
+BEFORE = {
+    "SIFT-SL (PSD)": (60.0, 50.0, 40.0),
+    "SIFT (SD)": (58.0, 51.0, 39.0),
+    "Ensemble (STK)": (63.0, 53.0, 42.0),
+    "nearest neighbour (SIFT (SD))": (58.0, 51.0, 39.0),
+    "random": (4.5, 4.5, 4.5),
+}
+
+
+def test_a_change_that_lifts_the_ensemble_past_its_bar_meets_the_rule(preset_rule, tmp_path, capsys):
+    after = {**BEFORE, "Ensemble (STK)": (64.0, 54.0, 43.0)}
+    write_run(tmp_path / "before", 1, BEFORE)
+    write_run(tmp_path / "after", 1, after)
+    assert preset_rule.main([str(tmp_path / "before"), str(tmp_path / "after")]) == 0
+    out = capsys.readouterr().out
+    # Margins before: 63 - max(60, 58 + 2) = +3, 53 - max(51, 53) = 0, 42 - max(40, 41) = +1; each +1 after.
+    assert "| mean margin | 1.33 | 2.33 |" in out
+    # PSD - SD above zero at L3 only (L1 is not counted), before and after.
+    assert "| SIFT-SL (PSD) − SIFT (SD) > 0 at L2 and L3 | 1 | 1 |" in out
+    assert "rule met (mean MRR +1.00, mean margin +1.00" in out
+
+
+def test_members_that_rise_with_the_ensemble_fail_the_margin_and_a_lost_twin_fails_the_parts(preset_rule, tmp_path, capsys):
+    # The ensemble +1 everywhere, but SD rises by 2 (its whole image is the nearest neighbour's): the bar rises with it,
+    # and PSD - SD falls below zero at L3.
+    after = {
+        **BEFORE,
+        "Ensemble (STK)": (64.0, 54.0, 43.0),
+        "SIFT (SD)": (60.0, 53.0, 41.0),
+        "nearest neighbour (SIFT (SD))": (60.0, 53.0, 41.0),
+    }
+    write_run(tmp_path / "before", 1, BEFORE)
+    write_run(tmp_path / "after", 1, after)
+    preset_rule.main([str(tmp_path / "before"), str(tmp_path / "after")])
+    out = capsys.readouterr().out
+    assert "rule not met: (b) mean margin; (c) SIFT-SL (PSD) − SIFT (SD) > 0 at L2 and L3" in out
+    assert "| SIFT (SD) | +2.00 |" in out
+
+
+def test_runs_without_common_seeds_are_a_one_line_error(preset_rule, tmp_path, capsys):
+    write_run(tmp_path / "before", 1, BEFORE)
+    write_run(tmp_path / "after", 2, BEFORE)
+    assert preset_rule.main([str(tmp_path / "before"), str(tmp_path / "after")]) == 1
+    err = capsys.readouterr().err
+    assert err.startswith("error: ") and "no seed has a results.csv in both" in err and err.count("\n") == 1
