@@ -75,6 +75,33 @@ def test_members_that_rise_with_the_ensemble_fail_the_margin_and_a_lost_twin_fai
     assert "| SIFT (SD) | +2.00 |" in out
 
 
+def test_keeping_the_margin_asks_its_floor_and_every_goals_count(preset_rule, tmp_path, capsys):
+    # The members rise with the ensemble: its margin falls from +1.33 to +0.33 (64 - 63, 54 - 54, 43 - 43), while every
+    # goal holds in all 3 cells before and after, and PSD - SD is above zero at L2 and L3 now.
+    after = {
+        **BEFORE,
+        "Ensemble (STK)": (64.0, 54.0, 43.0),
+        "SIFT-SL (PSD)": (62.0, 53.0, 42.0),
+        "SIFT (SD)": (61.0, 52.0, 41.0),
+        "nearest neighbour (SIFT (SD))": (61.0, 52.0, 41.0),
+    }
+    write_run(tmp_path / "before", 1, BEFORE)
+    write_run(tmp_path / "after", 1, after)
+    rule = [str(tmp_path / "before"), str(tmp_path / "after")]
+    preset_rule.main(rule)
+    assert "rule not met: (b) mean margin (" in capsys.readouterr().out
+    preset_rule.main([*rule, "--keep-margin", "0"])
+    out = capsys.readouterr().out
+    assert "| nearest neighbour + 2 | 3 | 3 |" in out and "| at or above every single variant | 3 | 3 |" in out
+    assert "rule met (mean MRR +1.00, mean margin -1.00" in out
+    preset_rule.main([*rule, "--keep-margin", "1"])
+    assert "rule not met: (b) mean margin below +1 (" in capsys.readouterr().out
+    # A goal's count that falls fails it too, whatever the margin: the nearest neighbour 1 point higher at L2.
+    write_run(tmp_path / "after2", 1, {**after, "nearest neighbour (SIFT (SD))": (61.0, 53.0, 41.0)})
+    preset_rule.main([str(tmp_path / "before"), str(tmp_path / "after2"), "--keep-margin", "-5"])
+    assert "rule not met: (b) nearest neighbour + 2 (" in capsys.readouterr().out
+
+
 def test_runs_without_common_seeds_are_a_one_line_error(preset_rule, tmp_path, capsys):
     write_run(tmp_path / "before", 1, BEFORE)
     write_run(tmp_path / "after", 2, BEFORE)
