@@ -45,12 +45,18 @@ BEFORE = {
 }
 
 
+def judged(preset_rule, folder: Path, capsys, after: dict[str, tuple[float, float, float]], *options: str) -> str:
+    """What the script prints for :data:`BEFORE` against ``after`` (seed 1 each, in ``folder``)."""
+    if not (folder / "before").exists():
+        write_run(folder / "before", 1, BEFORE)
+    changed = folder / f"after-{len(list(folder.glob('after-*')))}"
+    write_run(changed, 1, after)
+    assert preset_rule.main([str(folder / "before"), str(changed), *options]) == 0
+    return capsys.readouterr().out
+
+
 def test_a_change_that_lifts_the_ensemble_past_its_bar_meets_the_rule(preset_rule, tmp_path, capsys):
-    after = {**BEFORE, "Ensemble (STK)": (64.0, 54.0, 43.0)}
-    write_run(tmp_path / "before", 1, BEFORE)
-    write_run(tmp_path / "after", 1, after)
-    assert preset_rule.main([str(tmp_path / "before"), str(tmp_path / "after")]) == 0
-    out = capsys.readouterr().out
+    out = judged(preset_rule, tmp_path, capsys, {**BEFORE, "Ensemble (STK)": (64.0, 54.0, 43.0)})
     # Margins before: 63 - max(60, 58 + 2) = +3, 53 - max(51, 53) = 0, 42 - max(40, 41) = +1; each +1 after.
     assert "| mean margin | 1.33 | 2.33 |" in out
     # PSD - SD above zero at L3 only (L1 is not counted), before and after.
@@ -61,16 +67,8 @@ def test_a_change_that_lifts_the_ensemble_past_its_bar_meets_the_rule(preset_rul
 def test_members_that_rise_with_the_ensemble_fail_the_margin_and_a_lost_twin_fails_the_parts(preset_rule, tmp_path, capsys):
     # The ensemble +1 everywhere, but SD rises by 2 (its whole image is the nearest neighbour's): the bar rises with it,
     # and PSD - SD falls below zero at L3.
-    after = {
-        **BEFORE,
-        "Ensemble (STK)": (64.0, 54.0, 43.0),
-        "SIFT (SD)": (60.0, 53.0, 41.0),
-        "nearest neighbour (SIFT (SD))": (60.0, 53.0, 41.0),
-    }
-    write_run(tmp_path / "before", 1, BEFORE)
-    write_run(tmp_path / "after", 1, after)
-    preset_rule.main([str(tmp_path / "before"), str(tmp_path / "after")])
-    out = capsys.readouterr().out
+    sd = (60.0, 53.0, 41.0)
+    out = judged(preset_rule, tmp_path, capsys, {**BEFORE, "Ensemble (STK)": (64.0, 54.0, 43.0), "SIFT (SD)": sd, "nearest neighbour (SIFT (SD))": sd})
     assert "rule not met: (b) mean margin; (c) SIFT-SL (PSD) − SIFT (SD) > 0 at L2 and L3" in out
     assert "| SIFT (SD) | +2.00 |" in out
 
@@ -78,28 +76,16 @@ def test_members_that_rise_with_the_ensemble_fail_the_margin_and_a_lost_twin_fai
 def test_keeping_the_margin_asks_its_floor_and_every_goals_count(preset_rule, tmp_path, capsys):
     # The members rise with the ensemble: its margin falls from +1.33 to +0.33 (64 - 63, 54 - 54, 43 - 43), while every
     # goal holds in all 3 cells before and after, and PSD - SD is above zero at L2 and L3 now.
-    after = {
-        **BEFORE,
-        "Ensemble (STK)": (64.0, 54.0, 43.0),
-        "SIFT-SL (PSD)": (62.0, 53.0, 42.0),
-        "SIFT (SD)": (61.0, 52.0, 41.0),
-        "nearest neighbour (SIFT (SD))": (61.0, 52.0, 41.0),
-    }
-    write_run(tmp_path / "before", 1, BEFORE)
-    write_run(tmp_path / "after", 1, after)
-    rule = [str(tmp_path / "before"), str(tmp_path / "after")]
-    preset_rule.main(rule)
-    assert "rule not met: (b) mean margin (" in capsys.readouterr().out
-    preset_rule.main([*rule, "--keep-margin", "0"])
-    out = capsys.readouterr().out
+    sd = (61.0, 52.0, 41.0)
+    after = {**BEFORE, "Ensemble (STK)": (64.0, 54.0, 43.0), "SIFT-SL (PSD)": (62.0, 53.0, 42.0), "SIFT (SD)": sd, "nearest neighbour (SIFT (SD))": sd}
+    assert "rule not met: (b) mean margin (" in judged(preset_rule, tmp_path, capsys, after)
+    out = judged(preset_rule, tmp_path, capsys, after, "--keep-margin", "0")
     assert "| nearest neighbour + 2 | 3 | 3 |" in out and "| at or above every single variant | 3 | 3 |" in out
     assert "rule met (mean MRR +1.00, mean margin -1.00" in out
-    preset_rule.main([*rule, "--keep-margin", "1"])
-    assert "rule not met: (b) mean margin below +1 (" in capsys.readouterr().out
+    assert "rule not met: (b) mean margin below +1 (" in judged(preset_rule, tmp_path, capsys, after, "--keep-margin", "1")
     # A goal's count that falls fails it too, whatever the margin: the nearest neighbour 1 point higher at L2.
-    write_run(tmp_path / "after2", 1, {**after, "nearest neighbour (SIFT (SD))": (61.0, 53.0, 41.0)})
-    preset_rule.main([str(tmp_path / "before"), str(tmp_path / "after2"), "--keep-margin", "-5"])
-    assert "rule not met: (b) nearest neighbour + 2 (" in capsys.readouterr().out
+    closer = {**after, "nearest neighbour (SIFT (SD))": (61.0, 53.0, 41.0)}
+    assert "rule not met: (b) nearest neighbour + 2 (" in judged(preset_rule, tmp_path, capsys, closer, "--keep-margin", "-5")
 
 
 def test_runs_without_common_seeds_are_a_one_line_error(preset_rule, tmp_path, capsys):
