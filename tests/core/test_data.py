@@ -152,6 +152,17 @@ def test_scene_graph_records_where_it_was_drawn_as_a_square_grid_of_shares():
         SceneGraph(**ok, drawn=np.ones((2, 2), np.int64))
 
 
+
+def test_scene_graph_part_origins_are_source_region_pairs_with_none_for_the_whole_image():
+    ok = dict(boxes=np.zeros((3, 4), np.float32), features=np.zeros((3, 5), np.float32), weights=np.ones(3, np.float32), edges=np.zeros((0, 2), int))
+    assert SceneGraph(**ok).part_origins is None
+    SceneGraph(**ok, part_origins=np.array([[-1, -1], [0, 4], [-1, -1]], np.int32))
+    for bad in ([[-1, -1], [0, 4]], [[0, 0], [0, 1], [0, 2]], [[-1, -1], [0, -1], [1, 2]]):
+        with pytest.raises(InputError, match="SceneGraph.part_origins"):
+            SceneGraph(**ok, part_origins=np.array(bad, np.int32))
+    with pytest.raises(InputError, match="SceneGraph.part_origins"):
+        SceneGraph(**ok, part_origins=np.zeros((3, 2), np.float32))
+
 def test_scene_graph_validates_edges_and_needs_the_whole_image():
     ok = dict(boxes=np.zeros((3, 4), np.float32), features=np.zeros((3, 5), np.float32), weights=np.ones(3, np.float32))
     SceneGraph(**ok, edges=np.array([[0, 1], [1, 2]]))

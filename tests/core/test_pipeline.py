@@ -396,3 +396,26 @@ def test_a_synthetic_views_graph_records_where_it_was_drawn(view):
         np.testing.assert_allclose(drawn, ShiftWarp().synthesize(view, target).view.drawn_blocks(16), err_msg=order)
         assert drawn[:, -1].max() < 0.5 and drawn[:, :-2].min() == 1.0
     assert build_graph(bind("PD"), view).drawn is None  # a real view: all of it seen
+
+
+def test_each_part_keeps_the_real_region_it_began_as(view):
+    # 1.0 m to the right: stripe 0 (of 4) leaves the view, so the carried parts are stripes 1-3.
+    target = target_right(view, 1.0)
+    assert build_graph(bind("PD"), view).part_origins.tolist() == [[-1, -1], [0, 0], [0, 1], [0, 2], [0, 3]]
+    for order in ("PDS", "PSD"):
+        assert build_graph(bind(order), view, target).part_origins.tolist() == [[-1, -1], [0, 1], [0, 2], [0, 3]], order
+    # Parsed on the synthetic view, a part is no real region; nor is the whole image, nor a graph without parts.
+    for order in ("SPD", "DSP", "SD", "DS"):
+        assert build_graph(bind(order), view, target).part_origins is None, order
+    # Two sources: each one's parts are its own, by the source's index.
+    right = make_view(seed=3, pose=Pose(view.pose.x, view.pose.y - 1.0, view.pose.yaw))
+    both = build_graph(bind("PSD"), [view, right], target_right(view, 0.5))
+    sources = both.part_origins[1:, 0]
+    assert set(sources.tolist()) == {0, 1} and np.all(np.diff(sources) >= 0)
+    # What S drew is a part of no real region, and a joined part is the carried part it began as.
+    drawn = target_right(view, 0.6)
+    inventing = dataclasses.replace(bind("PSD", stripes=8), synthesizer=FillingShift(), parse_invented=True)
+    assert build_graph(inventing, view, drawn).part_origins[-1].tolist() == [-1, -1]
+    joined = build_graph(joining("PSD"), view, drawn)
+    split = build_graph(joining("PSD", join=False), view, drawn)
+    assert split.part_origins[-1].tolist() == [-1, -1] and joined.part_origins[-1].tolist() == split.part_origins[-2].tolist() != [-1, -1]

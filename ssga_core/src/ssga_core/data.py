@@ -414,6 +414,12 @@ class SceneGraph:
             (:meth:`View.drawn_blocks`); None for a real view, all of which was seen.
             A pseudo-view is often half holes: a matcher can then judge a query's parts
             only against what the pseudo-view shows where they stand.
+        part_origins: ``(N, 2)`` int32: which part of which real view each node is,
+            ``(source, region)``: ``source`` indexes the real views the graph was built
+            from (0 for a real view's own graph), ``region`` that view's parse; ``(-1, -1)``
+            for the whole image and for parts parsed on a synthetic view. It follows a part
+            through S, so the pseudo-views of one class show how one real part varies under
+            synthesis. None where no node comes from a real view's parse.
     """
 
     WHOLE_IMAGE: ClassVar[int] = 0
@@ -423,6 +429,7 @@ class SceneGraph:
     weights: np.ndarray
     edges: np.ndarray
     drawn: np.ndarray | None = None
+    part_origins: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         n = len(self.boxes) if isinstance(self.boxes, np.ndarray) else -1
@@ -441,6 +448,10 @@ class SceneGraph:
             _check_array("SceneGraph.drawn", self.drawn, (side, side), (np.floating,))
             if side < 1 or not np.all((self.drawn >= 0) & (self.drawn <= 1)):
                 raise InputError("SceneGraph.drawn: expected a square grid of shares in [0, 1]")
+        if self.part_origins is not None:
+            _check_array("SceneGraph.part_origins", self.part_origins, (n, 2), (np.integer,))
+            if np.any(self.part_origins[self.WHOLE_IMAGE] != -1) or np.any((self.part_origins < 0) & (self.part_origins[:, ::-1] >= 0)):
+                raise InputError("SceneGraph.part_origins: expected (source, region) pairs, both >= 0 or both -1, and -1 for the whole image")
 
     @property
     def num_nodes(self) -> int:

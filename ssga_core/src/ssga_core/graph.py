@@ -47,14 +47,21 @@ DRAWN_BLOCKS = 16
 16 x 16 blocks, 16 px at 256 x 256, finer than a SLICO part (64 of them in 256 x 256: 32 px across)."""
 
 
-def assemble(camera: Camera, part_boxes: np.ndarray, features: np.ndarray, drawn: np.ndarray | None = None) -> SceneGraph:
+def assemble(
+    camera: Camera, part_boxes: np.ndarray, features: np.ndarray, drawn: np.ndarray | None = None, part_origins: np.ndarray | None = None
+) -> SceneGraph:
     """The scene graph of a whole-image node (features row 0) and parts (rows 1..K); ``drawn``:
-    where a synthetic view was drawn (:meth:`~ssga_core.View.drawn_blocks`)."""
+    where a synthetic view was drawn (:meth:`~ssga_core.View.drawn_blocks`); ``part_origins``:
+    ``(K, 2)`` each part's (source view, region), -1 for none (``SceneGraph.part_origins``)."""
     boxes = np.concatenate([whole_image_box(camera)[None], np.asarray(part_boxes, dtype=np.float32).reshape(-1, 4)])
+    origins = None
+    if part_origins is not None and np.any(np.asarray(part_origins) >= 0):
+        origins = np.concatenate([np.full((1, 2), -1, np.int32), np.asarray(part_origins, np.int32).reshape(-1, 2)])
     return SceneGraph(
         boxes=boxes,
         features=np.asarray(features, dtype=np.float32),
         weights=node_weights(len(boxes) - 1),
         edges=proximity_edges(boxes, camera.width),
         drawn=drawn,
+        part_origins=origins,
     )

@@ -43,7 +43,9 @@ the region descriptor's image feature), nodes 1..K the surviving parts; a part w
 local feature in it is dropped (it has nothing to describe it). Weights are 1 for the
 whole image and 1/K per part; edges join boxes that overlap or are within 20 px. The
 graph of a synthetic view also records where on its image the synthesizer drew
-(``SceneGraph.drawn``).
+(``SceneGraph.drawn``), and every graph which region of which real view each part is
+(``SceneGraph.part_origins``): a part carried through S stays the real part it began as
+(a joined part its first carried member), a part parsed on the synthetic view is none.
 
 Real images (queries, and the one real training image per cell) take the query path:
 the order without S. So ``PDS``, ``PSD`` and ``SPD`` all parse-and-describe a query
@@ -164,7 +166,7 @@ def build_graph(
         order = bound.variant.order
     else:
         raise InputError(f"variant {bound.variant} has no S: it cannot build a graph for another pose")
-    states = [_State(v, memo=memo) for v in views]
+    states = [_State(v, memo=memo, source=i) for i, v in enumerate(views)]
     for stage in order:
         if stage == "S":
             assert bound.synthesizer is not None and target is not None
@@ -361,6 +363,7 @@ def _join(states: Sequence[_State]) -> _State:
         offsets = np.concatenate([[0], np.cumsum(sizes)[:-1]]).astype(np.int32)
         labels = _first_labelled([s.regions.labels for s in states], offsets.tolist())
         joined.regions = Regions.concatenate([s.regions for s in states], labels)
+        joined.origins = np.concatenate([s.part_origins() for s in states])
     else:
         offsets = np.zeros(len(states), np.int32)
     if all(s.local is not None for s in states):
@@ -396,9 +399,24 @@ class _State:
     reached: np.ndarray | None = None
     """After S, for a state that carried local features: ``(H, W)`` bool, the synthetic view's pixels
     some visible source pixel landed on."""
+    source: int = 0
+    """Which of the views the graph is built from this state began as (``SceneGraph.part_origins``)."""
+    origins: np.ndarray | None = None
+    """``(K, 2)`` int32, per region: the (source, region) of the real view's parse it is, -1 for a part
+    parsed on a synthetic view. It follows every step that drops, adds or joins regions."""
 
     def parse(self, parser: Parser) -> None:
         self.regions = self.memo.regions(parser, self.view) if self.memo else parser.parse(self.view)
+        k = len(self.regions)
+        if self.view.synthetic:
+            self.origins = np.full((k, 2), -1, np.int32)
+        else:
+            self.origins = np.stack([np.full(k, self.source), np.arange(k)], axis=1).astype(np.int32)
+
+    def part_origins(self) -> np.ndarray:
+        """``(K, 2)``: :attr:`origins` (-1 for every region where no step set them)."""
+        assert self.regions is not None
+        return self.origins if self.origins is not None else np.full((len(self.regions), 2), -1, np.int32)
 
     def parse_invented(self, parser: Parser, join: bool) -> np.ndarray | None:
         """Add parts for the drawn pixels no carried part covers (the module docstring); returns
@@ -453,6 +471,7 @@ class _State:
         added = Regions.from_labels(np.where(taken, fresh.labels, -1), fresh.categories)
         present = np.flatnonzero(np.bincount(fresh.labels[taken], minlength=len(fresh)))  # from_labels' order
         labels = np.where(added.labels >= 0, added.labels + len(carried), carried.labels).astype(np.int32)
+        self.origins = np.concatenate([self.part_origins(), np.full((len(added), 2), -1, np.int32)])
         self.regions = Regions.concatenate([carried, added], labels)
         return np.concatenate([np.zeros(len(carried), bool), ~mostly[present]])
 
@@ -483,6 +502,12 @@ class _State:
         lut = np.full(k, -1, dtype=np.int32)
         lut[kept_roots] = np.arange(len(kept_roots), dtype=np.int32)
         groups = lut[roots]
+        # A joined part is the real part it began as: its first carried member's (the parts S drew have none).
+        origins = self.part_origins()
+        drawn_by_s = origins[:, 0] < 0
+        self.origins = np.array(
+            [origins[min(np.flatnonzero(groups == g), key=lambda m: (drawn_by_s[m], m))] for g in range(len(kept_roots))], np.int32
+        ).reshape(-1, 2)
         self.regions = regions.merge(groups)
         if self.local_nodes is not None:
             self.local_nodes = np.where(self.local_nodes >= 0, groups[np.clip(self.local_nodes, 0, None)], -1).astype(np.int32)
@@ -503,6 +528,7 @@ class _State:
             keep_parts, moved = carry_regions(self.regions, syn)
             if self.local is not None:
                 self.local_nodes = _renumber(_region_at(self.regions.labels, self.local.positions), keep_parts)
+            self.origins = self.part_origins()[keep_parts]
             self.regions = moved
         if self.local is not None:
             uv, visible = syn.map_points(self.local.positions)
@@ -514,6 +540,7 @@ class _State:
     def graph(self, descriptor: Descriptor) -> SceneGraph:
         camera = self.view.camera
         regions = self.regions
+        origins = self.part_origins() if regions is not None else None
         if self.local is not None:
             assert isinstance(descriptor, LocalDescriptor)
             nodes = self.local_nodes
@@ -524,6 +551,7 @@ class _State:
                 keep = counts > 0
                 nodes = _renumber(nodes, keep)
                 regions = regions.select(keep)
+                origins = origins[keep]
             parts = [np.flatnonzero(nodes == k) for k in range(len(regions))] if regions is not None else []
             features = descriptor.pool(self.local, [np.arange(len(self.local)), *parts])
         else:
@@ -531,7 +559,7 @@ class _State:
             features = self.region_features
         boxes = regions.boxes if regions is not None else np.zeros((0, 4), np.float32)
         drawn = self.view.drawn_blocks(DRAWN_BLOCKS) if self.view.synthetic else None
-        return assemble(camera, boxes, features, drawn)
+        return assemble(camera, boxes, features, drawn, origins)
 
 
 def carry_regions(regions: Regions, syn: Synthesis) -> tuple[np.ndarray, Regions]:
