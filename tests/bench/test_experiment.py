@@ -239,6 +239,29 @@ def test_whitening_only_the_synthesized_views_retrains_only_the_variants_that_de
         assert (matcher.whiten is not None) == (name in describe_after_s), name
 
 
+
+def test_carried_parts_are_whitened_in_groups_of_one_real_part_and_the_rest_as_the_whole_images(tmp_path, dataset, stand_in_registry):
+    from ssga_bench.variant_training import load_classifier
+
+    run_experiment(
+        experiment(stand_in_registry, ("PSD", "SPD"), classifier="graph-match", match_whiten=1.0, match_whiten_parts="carried"), dataset, tmp_path
+    )
+    carried = load_classifier(tmp_path / "variants" / "PC-ST_PSD", "graph-match")
+    groups = carried.part_groups
+    assert carried.whiten_parts and groups is not None and len(groups) == len(carried._parts)
+    # A group is one real part within one class, seen in the class's real view and its pseudo-views: several graphs each.
+    owner = np.repeat(np.arange(len(carried.labels)), np.diff(carried.node_ptr) - 1)
+    grouped = groups >= 0
+    assert grouped.all()  # the stand-in synthesizer draws nothing of its own: every part is carried
+    for g in np.unique(groups):
+        members = owner[groups == g]
+        assert len(set(carried.labels[members].tolist())) == 1 and len(set(members.tolist())) == len(members)
+    assert max(np.bincount(groups)) > 1
+    # SPD parses the synthetic views: no part is a real one, so its parts are whitened as the whole images are.
+    parsed_after_s = load_classifier(tmp_path / "variants" / "PC-ST_SPD", "graph-match")
+    assert parsed_after_s.whiten_parts and parsed_after_s.part_groups is None and parsed_after_s._part_whitening is None
+
+
 def test_an_interrupted_scoring_resumes_with_the_chunks_it_had_not_scored(tmp_path, dataset, stand_in_registry, monkeypatch):
     from ssga_bench import experiment as runner
 

@@ -456,6 +456,63 @@ def test_whitened_parts_are_the_plain_part_match_of_the_whitened_parts():
     np.testing.assert_allclose(again.predict([query]), matcher.predict([query]), rtol=1e-6)
 
 
+
+def test_parts_in_groups_are_whitened_by_their_scatter_within_their_groups():
+    rng = np.random.default_rng(5)
+    labels = [k % 3 for k in range(12)]
+    train = [graph(*rng.normal(size=(2 + k % 3, 6))) for k in range(12)]
+    parts = np.concatenate([unit_rows(g.features[1:]) for g in train])
+    groups = rng.integers(0, 6, size=len(parts))
+    groups[:3] = -1  # parts of no real part: compared, but not fitted on
+    query = graph(*rng.normal(size=(4, 6)))
+    matcher = GraphMatcher.of(train, labels, 3, 0.0, 0.5, whiten=1.0, whiten_parts=True, part_groups=groups)
+    # The rule written out: the grouped parts' scatter about their group's mean, shrunk by its mean eigenvalue.
+    x = parts[groups >= 0]
+    g = groups[groups >= 0]
+    deviations = x - np.stack([x[g == k].mean(0) for k in range(6)])[g]
+    within = deviations.T @ deviations / len(x)
+    shrunk = within + np.trace(within) / 6 * np.eye(6)
+    inverse_root = np.linalg.cholesky(np.linalg.inv(shrunk))
+
+    def moved(graph_):  # each part less the grouped parts' mean, whitened; the whole image as it was
+        whitened = (unit_rows(graph_.features[1:]) - x.mean(0)) @ inverse_root
+        return replace(graph_, features=np.concatenate([graph_.features[:1], whitened]).astype(np.float32))
+
+    by_hand = GraphMatcher.of([moved(t) for t in train], labels, 3, 0.0, 0.5)
+    np.testing.assert_allclose(matcher.similarities(query), by_hand.similarities(moved(query)), atol=1e-5)
+    whole_space = GraphMatcher.of(train, labels, 3, 0.0, 0.5, whiten=1.0, whiten_parts=True)
+    assert not np.allclose(matcher.similarities(query), whole_space.similarities(query))
+    again = GraphMatcher.from_state(matcher.state_dict())
+    np.testing.assert_array_equal(again.part_groups, groups)
+    np.testing.assert_allclose(again.predict([query]), matcher.predict([query]), rtol=1e-6)
+    # Groups given without whitening the parts change nothing; a group per part is asked for.
+    np.testing.assert_array_equal(
+        GraphMatcher.of(train, labels, 3, 0.0, 0.5, whiten=1.0, part_groups=groups).similarities(query),
+        GraphMatcher.of(train, labels, 3, 0.0, 0.5, whiten=1.0).similarities(query),
+    )
+    with pytest.raises(InputError, match="a group for each of the"):
+        GraphMatcher.of(train, labels, 3, 0.0, 0.5, whiten=1.0, whiten_parts=True, part_groups=groups[:-1])
+
+
+def test_whitening_a_part_by_its_group_turns_down_what_synthesis_varied_in_it():
+    # Two places whose one part each is told apart by a faint trait (axes 0 / 1); each pseudo-view carries the part with
+    # a wide guess along axes 2-3. The whole images are alike, so whitened on them the parts gain nothing; a query part
+    # of place 0 that shares a place-1 pseudo-view's guess looks most like that view's part until its group says the
+    # guess is what varies in one part.
+    rng = np.random.default_rng(0)
+    labels = np.repeat([0, 1], 20)
+    trait = np.where(labels[:, None] == 0, [1.0, 0.0], [0.0, 1.0])
+    guess = rng.normal(size=(40, 2)) * 3
+    parts = np.concatenate([trait, guess, np.full((40, 1), 2.0)], axis=1)
+    whole = np.tile([0.0, 0.0, 0.0, 0.0, 1.0], (40, 1)) + rng.normal(size=(40, 5)) * 0.01
+    train = [graph(w, p, parts_boxes=[40, 20, 60, 30]) for w, p in zip(whole, parts)]
+    query = graph(whole[0], np.concatenate([[1.0, 0.0], guess[25] + 0.1, [2.0]]), parts_boxes=[40, 20, 60, 30])
+    whole_space = GraphMatcher.of(train, labels, 2, 0.0, whiten=0.1, whiten_parts=True)
+    grouped = GraphMatcher.of(train, labels, 2, 0.0, whiten=0.1, whiten_parts=True, part_groups=labels)
+    assert whole_space.predict([query]).argmax() == 1
+    assert grouped.predict([query]).argmax() == 0
+
+
 def unit_rows(x):
     x = np.asarray(x, np.float64)
     return x / np.linalg.norm(x, axis=1, keepdims=True)

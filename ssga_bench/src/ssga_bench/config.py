@@ -123,10 +123,12 @@ class TrainingConfig(Strict):
         "scatter within each class (what synthesis varies among one place's graphs counts less), the covariance shrunk "
         "by this times its mean eigenvalue (the whole image whitened); unset: plain cosine, as the nearest-neighbour row.",
     )
-    match_whiten_parts: bool = Field(
+    match_whiten_parts: bool | Literal["carried"] = Field(
         default=False,
         description="match_whiten: compare the parts in the same whitened space as the whole images (each side's parts "
-        "less the training parts' mean); off: the parts' plain cosines.",
+        "less the training parts' mean); 'carried': whiten them instead by how one real part varies among its class's "
+        "graphs (the part of the class's real view and what each pseudo-view carried of it through S: PDS, PSD), "
+        "and as true where the training graphs carry none (SPD); off: the parts' plain cosines.",
     )
     match_whiten_variants: Literal["all", "synthesized"] = Field(
         default="all",

@@ -55,6 +55,15 @@ training graphs. A query graph is compared with every training graph:
   With ``whiten_parts`` the parts are compared in the same whitened space (each side's
   parts less the training parts' mean); which parts of an image repeat one another is
   still read on their plain cosines.
+* **the parts whitened by what one part varies** (``part_groups`` with ``whiten_parts``):
+  fitted on the whole images, the whitening turns down what synthesis varies in a whole
+  image, not in a part. Where the training parts come in groups that are one real part
+  (a class's real view's part and what each of its pseudo-views carried of it:
+  ``SceneGraph.part_origins``), the parts are whitened instead by their own scatter
+  about their group's mean, shrunk the same way: how synthesis changes one part (the
+  pixels it blurred, the share of it that stayed in view) counts less than what tells
+  one part from another. The plain scatter of a class's parts would not do: it is mostly
+  how one image's parts differ from one another, which is what the match reads.
 
 The similarity of two graphs is ``whole_weight`` times the first plus the rest times the
 part match (the whole image alone where either graph has no part), and a class scores the
@@ -165,6 +174,7 @@ class GraphMatcher:
         burst_power: float = 1.0,
         whiten: float | None = None,
         whiten_parts: bool = False,
+        part_groups: np.ndarray | None = None,
     ) -> None:
         node_ptr, labels = np.asarray(node_ptr, np.int64), np.asarray(labels, np.int64)
         if (
@@ -231,8 +241,15 @@ class GraphMatcher:
                     votes[start : start + count] *= burst_weights(self._parts[start : start + count], self.burst, self.burst_power)
             self._train_part_votes = votes
             self._train_vote_totals = np.maximum(np.add.reduceat(votes, self._part_starts), 1e-6)
-        # The parts as the match compares them: whitened as the whole images are, or plain.
+        # The parts as the match compares them: whitened by their own groups' scatter, as the whole images are, or plain.
         self.whiten_parts = bool(whiten_parts) and whiten is not None
+        self.part_groups = None if part_groups is None else np.asarray(part_groups, np.int64)
+        if self.part_groups is not None and self.part_groups.shape != (len(self._parts),):
+            raise InputError(f"graph matcher: expected a group for each of the {len(self._parts)} training parts, got {self.part_groups.shape}")
+        self._part_whitening = None
+        if self.whiten_parts and self.part_groups is not None:
+            grouped = self.part_groups >= 0
+            self._part_whitening = within_class_whitening(self._parts[grouped], self.part_groups[grouped], self.whiten)  # type: ignore[arg-type]
         self._part_mean = self._parts.mean(axis=0) if self.whiten_parts and len(self._parts) else None
         self._compared_parts = self._parts if self._part_mean is None else self._compared(self._parts)
 
@@ -252,18 +269,20 @@ class GraphMatcher:
         burst_power: float = 1.0,
         whiten: float | None = None,
         whiten_parts: bool = False,
+        part_groups: np.ndarray | None = None,
     ) -> GraphMatcher:
         """The matcher of ``graphs``; ``weigh_drawn``: judge the query's parts where each graph was drawn, each graph's
         weighted mean starting from ``drawn_prior`` parts' worth of its plain mean; ``burst``: count the parts of an
         image above this cosine to one another as one repeated element (``burst_power``: how far); ``whiten``: whiten
-        the whole images by their scatter within each class, shrunk by this (``whiten_parts``: the parts too)."""
+        the whole images by their scatter within each class, shrunk by this (``whiten_parts``: the parts too, by
+        their scatter within ``part_groups`` where given, one group id per training part, -1 for none)."""
         node_ptr = np.concatenate([[0], np.cumsum([g.num_nodes for g in graphs])])
         features = _unit(np.concatenate([g.features for g in graphs])) if graphs else np.zeros((0, 1), np.float32)
         centres = np.concatenate([part_centres(g) for g in graphs]) if graphs else np.zeros((0, 2), np.float32)
         drawn = drawn_grids(graphs) if weigh_drawn else None
         return cls(
             features, centres, node_ptr, np.asarray(labels), num_classes, whole_weight, layout_weight, layout_sigma, standardise, drawn, drawn_prior,
-            burst, burst_power, whiten, whiten_parts,
+            burst, burst_power, whiten, whiten_parts, part_groups,
         )
 
     def state_dict(self) -> dict[str, np.ndarray]:
@@ -280,6 +299,7 @@ class GraphMatcher:
             **({} if self.drawn is None else {"drawn": self.drawn, "drawn_prior": np.array(self.drawn_prior)}),
             **({} if self.burst is None else {"burst": np.array(self.burst), "burst_power": np.array(self.burst_power)}),
             **({} if self.whiten is None else {"whiten": np.array(self.whiten), "whiten_parts": np.array(self.whiten_parts)}),
+            **({} if self.part_groups is None else {"part_groups": self.part_groups}),
         }
 
     @classmethod
@@ -302,6 +322,7 @@ class GraphMatcher:
                 float(state.get("burst_power", 1.0)),
                 float(state["whiten"]) if "whiten" in state else None,
                 bool(state.get("whiten_parts", False)),
+                state.get("part_groups"),
             )
         except KeyError as exc:
             raise InputError(f"graph matcher: saved state without {exc}") from None
@@ -313,7 +334,11 @@ class GraphMatcher:
         return _unit((np.atleast_2d(rows) - (whole_mean if mean is None else mean)) @ matrix)
 
     def _compared(self, parts: np.ndarray) -> np.ndarray:
-        """Parts as the match compares them: less the training parts' mean, whitened (with ``whiten_parts``), or plain."""
+        """Parts as the match compares them (with ``whiten_parts``): where there are groups, less the grouped training
+        parts' mean, whitened by their groups' scatter; else less the training parts' mean, as the whole images are; or plain."""
+        if self._part_whitening is not None:
+            mean, matrix = self._part_whitening
+            return _unit((np.atleast_2d(parts) - mean) @ matrix)
         if self._part_mean is None or self._whitening is None:
             return parts
         return self._whitened(parts, self._part_mean)

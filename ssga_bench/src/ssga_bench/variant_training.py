@@ -142,11 +142,36 @@ def _unused_whitening(rv: ResolvedVariant, training: TrainingConfig) -> set[str]
     return set(WHITENING) if training.match_whiten is not None and not whitens(rv, training) else set()
 
 
+def carried_part_groups(graphs: Sequence[SceneGraph], labels: Sequence[int], sources: Sequence[Sequence[int]]) -> np.ndarray | None:
+    """``(training parts,)``: each part of ``graphs`` (nodes 1.. of each, graph after graph) numbered by the real part it
+    is within its class, (class, cell, region of that cell's real view), from ``SceneGraph.part_origins``; -1 for a part
+    parsed on a synthetic view. ``sources``: per graph, the cells of the real views it was built from (its own cell for
+    a real graph, ``PseudoView.sources`` for a pseudo-view's). None where no real part is in two graphs of its class
+    (a variant that parses the synthetic views, SPD, has only its real views' parts)."""
+    numbers: dict[tuple[int, int, int], int] = {}
+    out: list[int] = []
+    for graph, label, cells in zip(graphs, labels, sources, strict=True):
+        if graph.part_origins is None:
+            out.extend([-1] * graph.num_parts)
+            continue
+        for source, region in graph.part_origins[1:].tolist():
+            out.append(-1 if source < 0 else numbers.setdefault((int(label), int(cells[source]), region), len(numbers)))
+    groups = np.asarray(out, np.int64)
+    return groups if numbers and np.bincount(groups[groups >= 0]).max() > 1 else None
+
+
 def _fit_classifier(
-    graphs: Sequence[SceneGraph], labels: Sequence[int], groups: np.ndarray, num_classes: int, training: TrainingConfig, folder: Path
+    graphs: Sequence[SceneGraph],
+    labels: Sequence[int],
+    groups: np.ndarray,
+    num_classes: int,
+    training: TrainingConfig,
+    folder: Path,
+    part_groups: np.ndarray | None = None,
 ) -> dict[str, Any]:
     """Fit the variant's classifier (``training.classifier``, its whitening already settled for the variant: :func:`whitens`)
-    and save it in ``folder``; returns its training record."""
+    and save it in ``folder``; returns its training record. ``part_groups``: :func:`carried_part_groups`, for
+    ``match_whiten_parts = "carried"``."""
     if training.classifier == "graph-match":
         rule = {
             "match_whole": training.match_whole,
@@ -172,7 +197,8 @@ def _fit_classifier(
             training.match_burst,
             training.match_burst_power,
             training.match_whiten,
-            training.match_whiten_parts,
+            bool(training.match_whiten_parts),
+            part_groups if training.match_whiten_parts == "carried" else None,
         )
         atomic_write_bytes(folder / CLASSIFIER_FILES["graph-match"], npz_bytes(matcher.state_dict()))
         return rule
@@ -454,11 +480,15 @@ def finish_variant(job: FinishJob) -> VariantOutcome:
     graphs = [*prepared.graphs, *job.pseudo]
     labels = [*prepared.labels, *(p.place for p in plan.pseudo)] if job.pseudo else list(prepared.labels)
     groups = plan.groups(len(prepared.graphs), bool(job.pseudo))
+    part_groups = None
+    if job.pseudo:  # with S each cell's real view is one graph, in the plan's order (real_training_graphs)
+        sources = [(cell,) for cell in range(len(prepared.graphs))] + [p.sources for p in plan.pseudo]
+        part_groups = carried_part_groups(graphs, labels, sources)
     with timings.phase("train"):
         training = variant_job.training
         if not whitens(variant_job.variant, training):
             training = training.model_copy(update={"match_whiten": None})
-        fitted = _fit_classifier(graphs, labels, groups, dataset.num_classes, training, folder)
+        fitted = _fit_classifier(graphs, labels, groups, dataset.num_classes, training, folder, part_groups)
     atomic_write_bytes(folder / "nearest.npz", npz_bytes({"features": whole_image_features(graphs), "labels": np.asarray(labels, np.int64)}))
     record = {"key": prepared.key, "label": prepared.label, "graphs": len(graphs), "classifier": variant_job.training.classifier, **fitted}
     write_json(folder / "training.json", record)  # last: the folder is a trained variant once it is there
