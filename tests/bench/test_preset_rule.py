@@ -7,6 +7,7 @@ import importlib.util
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 SCRIPT = Path(__file__).resolve().parents[2] / "scripts" / "preset_rule.py"
@@ -94,3 +95,45 @@ def test_runs_without_common_seeds_are_a_one_line_error(preset_rule, tmp_path, c
     assert preset_rule.main([str(tmp_path / "before"), str(tmp_path / "after")]) == 1
     err = capsys.readouterr().err
     assert err.startswith("error: ") and "no seed has a results.csv in both" in err and err.count("\n") == 1
+
+
+def write_views(folder: Path, seed: int, ranks: dict[str, list[int]], levels: list[int]) -> None:
+    """A seed's predictions.jsonl of views at ``levels`` with each row's rank of the true class, and its results.csv."""
+    import json
+
+    write_run(folder, seed, {row: tuple(float(np.mean([100 / r for r, v in zip(rs, levels) if v == g])) for g in (1, 2, 3)) for row, rs in ranks.items()})
+    with (folder / f"seed-{seed}" / "predictions.jsonl").open("w") as f:
+        for i, level in enumerate(levels):
+            f.write(json.dumps({"id": f"test-{i}", "level": level, "rows": {row: {"rank": rs[i]} for row, rs in ranks.items()}}) + "\n")
+
+
+def test_beyond_the_interval_a_cell_is_lost_only_where_the_shortfall_is_beyond_its_paired_interval(preset_rule, tmp_path, capsys):
+    # 30 views a level; the ensemble ranks every view first. Before, PSD ranks the first 3 views of L2 and L3 first and
+    # the rest second, SD all second: PSD − SD +5 points at each. After, SD ranks 6 other L3 views first (PSD − SD -5,
+    # a tie by its paired interval, about ±10) in one run, and 25 (-37, beyond it) in another.
+    levels = [1] * 30 + [2] * 30 + [3] * 30
+    psd = [2] * 30 + ([1] * 3 + [2] * 27) * 2
+    before = {"Ensemble (STK)": [1] * 90, "nearest neighbour (SIFT (SD))": [2] * 90, "SIFT-SL (PSD)": psd, "SIFT (SD)": [2] * 90, "random": [50] * 90}
+    write_views(tmp_path / "before", 1, before, levels)
+    for name, first in (("tie", 6), ("beyond", 25)):
+        sd = [2] * 63 + [1] * first + [2] * (27 - first)
+        write_views(tmp_path / name, 1, {**before, "SIFT (SD)": sd, "nearest neighbour (SIFT (SD))": sd}, levels)
+    args = [str(tmp_path / "before"), "--keep-margin", "-100"]
+    assert preset_rule.main([args[0], str(tmp_path / "tie"), *args[1:]]) == 0
+    assert "(c) SIFT-SL (PSD) − SIFT (SD) > 0 at L2 and L3 (" in capsys.readouterr().out  # L3 below zero: counted lost
+    assert preset_rule.main([args[0], str(tmp_path / "tie"), *args[1:], "--beyond-interval"]) == 0
+    out = capsys.readouterr().out
+    assert "| SIFT-SL (PSD) − SIFT (SD) > 0 at L2 and L3, not short beyond its interval | 2 | 2 |" in out
+    assert "(c)" not in out
+    assert preset_rule.main([args[0], str(tmp_path / "beyond"), *args[1:], "--beyond-interval"]) == 0
+    out = capsys.readouterr().out
+    assert "| SIFT-SL (PSD) − SIFT (SD) > 0 at L2 and L3, not short beyond its interval | 2 | 1 |" in out
+    assert "(c) SIFT-SL (PSD) − SIFT (SD) > 0 at L2 and L3, not short beyond its interval" in out
+
+
+def test_beyond_the_interval_needs_the_predictions(preset_rule, tmp_path, capsys):
+    write_run(tmp_path / "before", 1, BEFORE)
+    write_run(tmp_path / "after", 1, BEFORE)
+    assert preset_rule.main([str(tmp_path / "before"), str(tmp_path / "after"), "--beyond-interval"]) == 1
+    err = capsys.readouterr().err
+    assert err.startswith("error: ") and "predictions.jsonl" in err and err.count("\n") == 1
