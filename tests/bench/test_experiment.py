@@ -351,9 +351,9 @@ def test_the_pseudo_views_graphs_built_in_chunks_are_those_the_pipeline_builds_w
     seen, chunks = {}, []
     fit_classifier, build = variant_training._fit_classifier, variant_training.pseudo_graphs
 
-    def recording(graphs, labels, groups, num_classes, training, folder):
+    def recording(graphs, labels, groups, num_classes, training, folder, part_groups=None):
         seen[folder.parent.name, folder.name] = (list(graphs), list(labels), groups.copy())  # variants/ or oracle/
-        return fit_classifier(graphs, labels, groups, num_classes, training, folder)
+        return fit_classifier(graphs, labels, groups, num_classes, training, folder, part_groups)
 
     monkeypatch.setattr("ssga_bench.variant_training._fit_classifier", recording)
     monkeypatch.setattr("ssga_bench.experiment.pseudo_graphs", lambda chunk: chunks.append(len(chunk.pseudo)) or build(chunk))
