@@ -117,6 +117,7 @@ def interval_summary(output: Path, cells: dict[tuple[int, str], Cell]) -> dict[s
     beyond the paired 95% interval of the difference on its test views (``seed-*/predictions.jsonl``)."""
     out: dict[str, int] = {}
     records: dict[int, list] = {}
+    differences: dict[tuple[int, str, str], dict] = {}  # every level's at once, so each pair is read once a seed
     for (seed, level), cell in cells.items():
         path = output / f"seed-{seed}" / "predictions.jsonl"
         if seed not in records:
@@ -125,7 +126,9 @@ def interval_summary(output: Path, cells: dict[tuple[int, str], Cell]) -> dict[s
             records[seed] = load_predictions(path)
 
         def high(a: str, b: str) -> float:  # the top of the 95% interval of b − a at this level
-            return paired_differences(records[seed], a, b, "mrr", str(path))[level].high
+            if (seed, a, b) not in differences:
+                differences[seed, a, b] = paired_differences(records[seed], a, b, "mrr", str(path))
+            return differences[seed, a, b][level].high
 
         held = {
             "nearest neighbour + 2": cell.nearest is None or high(NEAREST, ENSEMBLE) >= NEAREST_LEAD,
