@@ -81,3 +81,53 @@ def test_bad_inputs_are_named():
         bad = scores.copy()
         bad[0, 0, 0] = -1.0
         fuser.fit(bad, np.array([0, 1, 2, 3]))
+
+
+def easy_and_hard(rng: np.random.Generator, truth: np.ndarray, classes: int) -> np.ndarray:
+    """Two members whose worth turns with the query: on an easy view (even queries) both are sure, A
+    right and B confidently wrong; on a hard view (odd queries) both are nearly flat, B leaning to the
+    truth and A as much to a wrong class. No fixed weights of their log-probabilities get both kinds right
+    (A must outweigh B on the easy views and B outweigh A on the hard ones)."""
+    def member(peak_at: np.ndarray, height: np.ndarray) -> np.ndarray:
+        logits = rng.normal(0.0, 0.05, (len(truth), classes))
+        logits[np.arange(len(truth)), peak_at] += height
+        p = np.exp(logits)
+        return p / p.sum(axis=1, keepdims=True)
+
+    easy = np.arange(len(truth)) % 2 == 0
+    wrong = (truth + rng.integers(1, classes, len(truth))) % classes
+    height = np.where(easy, 4.0, 0.5)
+    a = member(np.where(easy, truth, wrong), height)
+    b = member(np.where(easy, wrong, truth), height)
+    return np.stack([a, b])
+
+
+@pytest.mark.parametrize("gate", ["sharpness", "consensus"])
+def test_a_gate_trusts_each_member_where_it_is_right(gate):
+    rng = np.random.default_rng(3)
+    classes = 10
+    truth_val, truth_test = rng.integers(0, classes, 400), rng.integers(0, classes, 400)
+    val, test = easy_and_hard(rng, truth_val, classes), easy_and_hard(rng, truth_test, classes)
+
+    def top1(fuser):
+        fuser.fit(val, truth_val)
+        return float(np.mean(fuser.fuse(test).argmax(axis=1) == truth_test))
+
+    fixed = Stacking(StackingConfig(inputs=["log-probability"]))
+    gated = Stacking(StackingConfig(inputs=["log-probability"], gate=gate))
+    assert top1(fixed) < 0.75  # one kind of view right, the other by the noise's luck (0.655 here)
+    assert top1(gated) > 0.95  # 1.0 here
+    learned = gated.learned()
+    assert learned["gate"] == gate and np.asarray(learned["weights"]).shape == (2, 1, 2)
+    assert np.asarray(learned["sharpness_range"]).shape == (2, 2)
+    assert "gate" not in fixed.learned()
+
+
+def test_meets_the_fuser_contract_with_a_gate():
+    check_fuser(Stacking(StackingConfig(gate="consensus")))
+
+
+def test_a_gate_needs_probabilities():
+    scores = np.full((2, 4, 5), 2.0)
+    with pytest.raises(InputError, match=r"gate 'sharpness' needs class probabilities in \[0, 1\]"):
+        Stacking(StackingConfig(inputs=["reciprocal-rank"], gate="sharpness")).fit(scores, np.array([0, 1, 2, 3]))
