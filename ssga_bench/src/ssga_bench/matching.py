@@ -250,8 +250,9 @@ class GraphMatcher:
         if self.whiten_parts and self.part_groups is not None:
             grouped = self.part_groups >= 0
             self._part_whitening = within_class_whitening(self._parts[grouped], self.part_groups[grouped], self.whiten)  # type: ignore[arg-type]
-        self._part_mean = self._parts.mean(axis=0) if self.whiten_parts and len(self._parts) else None
-        self._compared_parts = self._parts if self._part_mean is None else self._compared(self._parts)
+        whole_space = self.whiten_parts and self._part_whitening is None and len(self._parts)
+        self._part_mean = self._parts.mean(axis=0) if whole_space else None
+        self._compared_parts = self._compared(self._parts)
 
     @classmethod
     def of(

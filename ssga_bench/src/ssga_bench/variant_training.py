@@ -481,7 +481,8 @@ def finish_variant(job: FinishJob) -> VariantOutcome:
     labels = [*prepared.labels, *(p.place for p in plan.pseudo)] if job.pseudo else list(prepared.labels)
     groups = plan.groups(len(prepared.graphs), bool(job.pseudo))
     part_groups = None
-    if job.pseudo:  # with S each cell's real view is one graph, in the plan's order (real_training_graphs)
+    if job.pseudo and variant_job.training.match_whiten_parts == "carried":
+        # With S each cell's real view is one graph, in the plan's order (real_training_graphs).
         sources = [(cell,) for cell in range(len(prepared.graphs))] + [p.sources for p in plan.pseudo]
         part_groups = carried_part_groups(graphs, labels, sources)
     with timings.phase("train"):

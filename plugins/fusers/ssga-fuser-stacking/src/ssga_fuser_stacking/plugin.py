@@ -99,14 +99,11 @@ class Stacking(Fuser):
         return 1.0 - (-(p * np.log(p)).sum(axis=-1)) / np.log(scores.shape[-1])
 
     def _gate(self, scores: np.ndarray) -> np.ndarray:
-        """``(V, Q)``: each query's meta-feature for each member, in [0, 1]."""
+        """``(V, Q)``: each query's meta-feature for each member, in [0, 1] (scaled by :attr:`sharpness_range`)."""
+        assert self.sharpness_range is not None
         self._check_probabilities(scores, f"gate {self.config.gate!r}")
-        sharpness = self._sharpness(scores)
-        if self.sharpness_range is None:  # fitting: the validation views set the scale
-            low, high = np.percentile(sharpness, [5.0, 95.0], axis=1)
-            self.sharpness_range = np.stack([low, np.maximum(high, low + 1e-12)], axis=1)
         low, high = self.sharpness_range[:, :1], self.sharpness_range[:, 1:]
-        m = np.clip((sharpness - low) / (high - low), 0.0, 1.0)
+        m = np.clip((self._sharpness(scores) - low) / (high - low), 0.0, 1.0)
         if self.config.gate == "consensus":
             m = np.broadcast_to(m.mean(axis=0, keepdims=True), m.shape)
         return m
@@ -119,6 +116,10 @@ class Stacking(Fuser):
         if truth.shape != scores.shape[1:2] or not np.issubdtype(truth.dtype, np.integer) or truth.min() < 0 or truth.max() >= scores.shape[2]:
             raise InputError(f"fuser 'stacking': expected {scores.shape[1]} true classes in [0, {scores.shape[2]}), got {truth.shape} {truth.dtype}")
         self.sharpness_range = None
+        if self.config.gate != "none":  # the validation views set the gate's scale
+            self._check_probabilities(scores, f"gate {self.config.gate!r}")
+            low, high = np.percentile(self._sharpness(scores), [5.0, 95.0], axis=1)
+            self.sharpness_range = np.stack([low, np.maximum(high, low + 1e-12)], axis=1)
         # (Q, F, C): one column of the conditional-logit model per member and input (and gate basis).
         features = self._inputs(scores)
         shape = features.shape[:-2]
