@@ -388,6 +388,33 @@ def test_joining_unites_touching_parts_of_one_category_and_drops_the_optional_on
     assert len(state.regions) == 2
 
 
+def test_joining_keeps_the_parts_of_a_parser_that_cuts_pieces_apart_and_gives_a_sliver_to_one_of_them():
+    from ssga_core.pipeline import _State
+
+    labels = np.full((4, 12), -1, np.int32)
+    labels[:, 0:3], labels[:, 3:6], labels[:, 6:7], labels[:, 7:10], labels[:, 11] = 0, 1, 2, 3, 4
+    # 0 and 1: two carried parts of one piece, side by side; 2: a sliver S drew between 1 and 3, all of
+    # category 0; 4: an added part of its own, one pixel from 3.
+    categories = np.array([0, 0, 0, 0, 0], np.int32)
+    optional = np.array([False, False, True, False, False])
+
+    def joined(keep_apart):
+        state = _State(make_view(seed=3), regions=Regions(labels=labels, boxes=boxes_from_labels(labels, 5), categories=categories))
+        state.join_split_parts(optional, keep_apart=keep_apart)
+        return state.regions
+
+    assert len(joined(False)) == 1  # pieces of one category: everything that touches is one
+    apart = joined(True)
+    assert len(apart) == 4
+
+    def original(column):  # the parts before joining that the joined part at this column holds
+        return set(np.unique(labels[apart.labels == apart.labels[0, column]]).tolist())
+
+    assert original(0) == {0} and original(11) == {4}
+    assert original(6) in ({1, 2}, {2, 3}), "the sliver joins one carried part, not both"
+    assert original(4) != original(8)
+
+
 def test_a_synthetic_views_graph_records_where_it_was_drawn(view):
     # 0.6 m to the right: content moves 25.6 px left, so columns 230-255 of the synthetic view are a hole.
     target = target_right(view, 0.6)

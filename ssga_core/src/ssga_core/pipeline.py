@@ -37,6 +37,9 @@ has been parsed and described of it so far.
     (``Parser.regions_are_category_pieces``) joins the parts of one category that touch in
     the synthetic view, as the parser would have cut it; and what S drew of a region that
     is mostly carried (left out above) joins the carried part of its category it touches.
+    A parser that cuts large pieces into smaller parts of one category
+    (``Parser.regions_cut_from_pieces``) keeps its parts apart: only what S drew of a
+    mostly carried region joins one part it touches.
 
 At the end the graph is assembled: node 0 is the whole image (all local features, or
 the region descriptor's image feature), nodes 1..K the surviving parts; a part with no
@@ -186,7 +189,7 @@ def build_graph(
             if bound.describe_invented and bound.variant.describes_before_synthesis:
                 optional = states[0].describe_invented(bound.descriptor, bound.parser, join)
             if join:
-                states[0].join_split_parts(optional)
+                states[0].join_split_parts(optional, keep_apart=parser.regions_cut_from_pieces)
             continue
         for state in states:
             if stage == "P":
@@ -475,9 +478,11 @@ class _State:
         self.regions = Regions.concatenate([carried, added], labels)
         return np.concatenate([np.zeros(len(carried), bool), ~mostly[present]])
 
-    def join_split_parts(self, optional: np.ndarray | None) -> None:
+    def join_split_parts(self, optional: np.ndarray | None, keep_apart: bool = False) -> None:
         """Join the parts of one category that touch (the module docstring); a part marked in
-        ``optional`` stays only in a group with a part that is not."""
+        ``optional`` stays only in a group with a part that is not. With ``keep_apart`` (a parser
+        that cuts pieces into parts, ``Parser.regions_cut_from_pieces``) the parts not marked are
+        never joined to one another: an optional part joins at most one of them."""
         regions = self.regions
         assert regions is not None
         if regions.categories is None:
@@ -491,11 +496,17 @@ class _State:
                 a = parent[a]
             return a
 
-        for a, b in _touching_pairs(regions.labels, JOIN_REACH):
-            if regions.categories[a] == regions.categories[b]:
-                parent[root(a)] = root(b)
-        roots = np.array([root(a) for a in range(k)], dtype=np.int64)
         optional = np.zeros(k, bool) if optional is None else optional
+        anchors = (~optional).astype(np.int64)  # per root: how many parts not marked its group holds
+        for a, b in _touching_pairs(regions.labels, JOIN_REACH):
+            ra, rb = root(a), root(b)
+            if ra == rb or regions.categories[a] != regions.categories[b]:
+                continue
+            if keep_apart and anchors[ra] + anchors[rb] > 1:
+                continue
+            parent[ra] = rb
+            anchors[rb] += anchors[ra]
+        roots = np.array([root(a) for a in range(k)], dtype=np.int64)
         anchored = np.zeros(k, bool)
         anchored[roots[~optional]] = True
         kept_roots = [r for r in dict.fromkeys(roots.tolist()) if anchored[r]]  # in order of first member

@@ -104,6 +104,11 @@ class Parser(Stage):
     """True when each region is one connected piece of one category (``Regions.categories``), as a
     segmenter's: two touching regions of one category are then one region split apart, which is how
     synthesis can leave them (``BoundVariant.join_split_parts``). False for superpixels and instances."""
+    regions_cut_from_pieces: bool = False
+    """With :attr:`regions_are_category_pieces`: True when the parser cuts large pieces into smaller
+    parts of one category, so that two touching regions of one category may be two parts on purpose.
+    Joining after S then only attaches to a part what S drew of it (``BoundVariant.join_split_parts``).
+    A parser whose config decides it overrides this per instance."""
 
     def parse(self, view: View) -> Regions:
         self._require(view)

@@ -13,7 +13,7 @@ import torch
 from pydantic import ValidationError
 from ssga_parser_cascade_seg.classes import ADE20K, PROCEDURAL
 from ssga_parser_cascade_seg.model import LIGHT, RESNET18DILATED, RESNET50DILATED, SceneParser, init_weights
-from ssga_parser_cascade_seg.plugin import FILES, LAYOUTS, LIGHT_WEIGHTS, CascadeSeg, CascadeSegConfig, class_regions
+from ssga_parser_cascade_seg.plugin import FILES, LAYOUTS, LIGHT_WEIGHTS, CascadeSeg, CascadeSegConfig, class_regions, cut_pieces
 
 from ssga_bench import checkpoint_bytes, validate_experiment
 from ssga_bench.testing import RunsCode
@@ -89,6 +89,42 @@ def test_regions_are_the_connected_pieces_of_each_class():
     core = Regions.from_labels(four.labels, categories=four.categories)
     np.testing.assert_array_equal(core.labels, four.labels)
     np.testing.assert_array_equal(core.boxes, four.boxes)
+
+
+def test_pieces_larger_than_split_px_are_cut_into_compact_parts_of_their_class():
+    classes = np.full((40, 60), 2, dtype=np.int32)  # a large piece of class 2 (2200 px)...
+    classes[5:15, 5:15] = 5  # ...around a small one of class 5 (100 px)
+    classes[30:, :] = -1
+    rgb = np.zeros((40, 60, 3), np.uint8)
+    rgb[:, 30:] = 200  # a colour edge through the large piece
+    confidence = np.linspace(0.5, 1.0, classes.size, dtype=np.float32).reshape(classes.shape)
+    whole = class_regions(classes, PROCEDURAL, 0, 8, confidence)
+    cut = cut_pieces(whole, rgb, 600, confidence)
+    large = cut.categories == 2
+    # SLIC is asked for ceil(1700 / 600) = 3 and keeps the two halves of one colour: parts, not the piece.
+    assert large.sum() >= 2 and (~large).sum() == 1, "the large piece in parts, the small one whole"
+    np.testing.assert_array_equal(cut.labels >= 0, whole.labels >= 0)  # every pixel of a piece stays in one of its parts
+    np.testing.assert_array_equal(cut.mask(np.flatnonzero(~large)[0]), classes == 5)
+    for k in np.flatnonzero(large):
+        assert (classes[cut.mask(k)] == 2).all() and cut.names[k] == "ceiling"
+        assert cut.mask(k).sum() <= 1200, "none near the whole piece"
+        np.testing.assert_allclose(cut.scores[k], confidence[cut.mask(k)].mean(), rtol=1e-5)
+    # Each part lies on one side of the colour edge (SLICO follows it).
+    assert all(len(np.unique(rgb[cut.mask(k)][:, 0])) == 1 for k in np.flatnonzero(large))
+    np.testing.assert_array_equal(cut.boxes, Regions.from_labels(cut.labels).boxes)
+    assert cut_pieces(whole, rgb, 10_000, confidence).labels.tolist() == whole.labels.tolist()
+
+
+def test_split_px_cuts_the_parsers_regions_and_says_so():
+    view = make_view(seed=4, size=128)
+    whole, cut = CascadeSeg(RANDOM), CascadeSeg(RANDOM.model_copy(update={"split_px": 500}))
+    assert not whole.regions_cut_from_pieces and cut.regions_cut_from_pieces
+    assert whole.regions_are_category_pieces and cut.regions_are_category_pieces
+    a, b = whole.parse(view), cut.parse(view)
+    assert len(b) > len(a) and np.bincount(b.labels[b.labels >= 0]).max() <= 1500
+    check_parser(cut, view)
+    # Off, the field is left out of cache keys: runs made before it resume.
+    assert "split_px" in CascadeSegConfig().unkeyed() and "split_px" not in CascadeSegConfig(split_px=500).unkeyed()
 
 
 def test_scores_are_the_mean_confidence_of_each_region():

@@ -22,7 +22,7 @@ from __future__ import annotations
 import difflib
 from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
-from typing import Annotated, Any, Literal, Self
+from typing import Annotated, Any, ClassVar, Literal, Self
 
 import numpy as np
 from pydantic import Field, model_validator
@@ -81,6 +81,8 @@ def unknown_class(wanted: Iterable[str], names: Sequence[str], said: str) -> str
 
 
 class CascadeSegConfig(LearnedConfig):
+    added_since: ClassVar[frozenset[str]] = frozenset({"split_px"})
+
     weights: str = weights_field(
         LIGHT_WEIGHTS,
         "an official release such as 'ade20k-resnet50dilated-ppm_deepsup'",
@@ -119,6 +121,14 @@ class CascadeSegConfig(LearnedConfig):
         "merged: merging would join different classes). 0 keeps every piece.",
     )
     connectivity: Literal[4, 8] = Field(default=8, description="Pixels of one class join a piece through 4 or 8 neighbours.")
+    split_px: int = Field(
+        default=0,
+        ge=0,
+        le=1 << 24,
+        description="A piece larger than this many pixels is cut into ceil(area / split_px) compact parts of its "
+        "class (SLICO superpixels inside the piece), so that a wall or a floor is several parts, as a superpixel "
+        "parser's are; 0 keeps every piece whole (the paper's parser). 2600 is SLICO's 'coarse' superpixel at 256 x 256.",
+    )
     ignore_classes: tuple[str, ...] = Field(
         default=(),
         max_length=256,
@@ -169,6 +179,7 @@ class CascadeSeg(Learned, Parser):
     def __init__(self, config: CascadeSegConfig | None = None) -> None:
         super().__init__(config)
         cfg: CascadeSegConfig = self.config  # type: ignore[assignment]  # now with the weights' network and classes
+        self.regions_cut_from_pieces = cfg.split_px > 0
         self.class_names: tuple[str, ...] = VOCABULARIES[cfg.classes]  # type: ignore[index]
         problem = unknown_class(cfg.ignore_classes, self.class_names, f"classes = {cfg.classes!r}, the vocabulary of config field 'weights' = {cfg.weights!r}")
         if problem:
@@ -293,7 +304,10 @@ class CascadeSeg(Learned, Parser):
             classes[~view.valid_depth()] = -1
         if self._ignored.size:
             classes[np.isin(classes, self._ignored)] = -1
-        return class_regions(classes, self.class_names, cfg.min_region_px, cfg.connectivity, confidence)
+        regions = class_regions(classes, self.class_names, cfg.min_region_px, cfg.connectivity, confidence)
+        if cfg.split_px:
+            regions = cut_pieces(regions, view.rgb, cfg.split_px, confidence)
+        return regions
 
 
 
@@ -357,6 +371,48 @@ def class_regions(classes: np.ndarray, names: tuple[str, ...], min_px: int, conn
         boxes=boxes_from_labels(labels, k),
         categories=np.asarray(categories, dtype=np.int32),
         names=tuple(names[c] for c in categories),
+        scores=scores,
+    )
+
+
+def cut_pieces(regions: Regions, rgb: np.ndarray, max_px: int, confidence: np.ndarray | None = None) -> Regions:
+    """``regions`` with each region larger than ``max_px`` pixels cut into ``ceil(area / max_px)`` compact
+    parts of its category: SLICO superpixels of ``rgb`` inside the region (numbered in the region's place,
+    in SLIC's order). ``scores`` (with ``confidence``) are each part's mean again; other fields follow the region.
+    """
+    from skimage.segmentation import slic  # imported here: keeps plugin discovery light
+
+    labels = np.full(regions.labels.shape, -1, dtype=np.int32)
+    source: list[int] = []  # per new region, the region it is a part of
+    areas = np.bincount(regions.labels[regions.labels >= 0], minlength=len(regions))
+    for r in range(len(regions)):
+        inside = regions.labels == r
+        parts = int(np.ceil(areas[r] / max_px))
+        if parts <= 1:
+            labels[inside] = len(source)
+            source.append(r)
+            continue
+        rows, cols = np.flatnonzero(inside.any(1)), np.flatnonzero(inside.any(0))
+        box = np.s_[rows[0] : rows[-1] + 1, cols[0] : cols[-1] + 1]  # SLIC on the region's box only: cheaper
+        mask = inside[box]
+        cut = slic(
+            rgb[box], n_segments=parts, mask=mask, slic_zero=True, start_label=1, enforce_connectivity=True, channel_axis=-1
+        )[mask]  # fmt: skip
+        cut[cut == 0] = cut.max(initial=1)  # SLIC labels every pixel of the mask; should one be left, it stays in the region
+        present, numbered = np.unique(cut, return_inverse=True)
+        labels[box][mask] = len(source) + numbered.astype(np.int32)
+        source.extend([r] * len(present))
+    keep = np.asarray(source, dtype=np.int64)
+    scores = regions.scores[keep] if regions.scores is not None else None
+    if confidence is not None and regions.scores is not None:
+        known = labels >= 0
+        sums = np.bincount(labels[known], weights=confidence[known], minlength=len(keep))
+        scores = (sums / np.maximum(np.bincount(labels[known], minlength=len(keep)), 1)).astype(np.float32)
+    return Regions(
+        labels=labels,
+        boxes=boxes_from_labels(labels, len(keep)),
+        categories=regions.categories[keep] if regions.categories is not None else None,
+        names=tuple(regions.names[i] for i in keep) if regions.names is not None else None,
         scores=scores,
     )
 
