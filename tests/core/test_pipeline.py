@@ -368,6 +368,31 @@ def test_join_split_parts_leaves_parsers_of_other_regions_and_orders_without_car
         np.testing.assert_array_equal(build_graph(joining(order), view, target).features, build_graph(joining(order, join=False), view, target).features)
 
 
+class PairedStripes(StripesParser):
+    """Stripes in touching pairs of one category: pieces cut in two, as cascade-seg's ``split_px`` cuts them."""
+
+    regions_are_category_pieces = True
+    regions_cut_from_pieces = True
+
+    def _parse(self, view):
+        regions = super()._parse(view)
+        return dataclasses.replace(regions, categories=(np.arange(len(regions)) // 2).astype(np.int32))
+
+
+def test_join_split_parts_keeps_the_parts_of_a_parser_that_cuts_pieces_apart_and_gives_them_what_s_drew(view):
+    # 0.3 m: what S drew (columns 243-255) is under half of the synthetic view's last stripe, so it is
+    # optional; it joins the carried last stripe, and the carried stripes of one category stay two parts.
+    target = target_right(view, 0.3)
+    paired = dataclasses.replace(joining("PSD"), parser=PairedStripes(StripesConfig(stripes=8)))
+    split, joined = build_graph(dataclasses.replace(paired, join_split_parts=False), view, target), build_graph(paired, view, target)
+    assert joined.num_nodes == split.num_nodes
+    assert split.boxes[-1][2] < 243 and joined.boxes[-1][2] == 255
+    np.testing.assert_allclose(joined.boxes[:-1], split.boxes[:-1])
+    # The same pairs as whole pieces' halves (a parser that does not cut) are joined into one part each.
+    whole = dataclasses.replace(paired, parser=type("WholePairs", (PairedStripes,), {"regions_cut_from_pieces": False})(StripesConfig(stripes=8)))
+    assert build_graph(whole, view, target).num_nodes < split.num_nodes - 2
+
+
 def test_joining_unites_touching_parts_of_one_category_and_drops_the_optional_ones_left_alone():
     from ssga_core.pipeline import _State
 
