@@ -92,7 +92,7 @@ def test_regions_are_the_connected_pieces_of_each_class():
 
 
 def test_pieces_larger_than_split_px_are_cut_into_compact_parts_of_their_class():
-    classes = np.full((40, 60), 2, dtype=np.int32)  # a large piece of class 2 (2200 px)...
+    classes = np.full((40, 60), 2, dtype=np.int32)  # a large piece of class 2 (1700 px)...
     classes[5:15, 5:15] = 5  # ...around a small one of class 5 (100 px)
     classes[30:, :] = -1
     rgb = np.zeros((40, 60, 3), np.uint8)
