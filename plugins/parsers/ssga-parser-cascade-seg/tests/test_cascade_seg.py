@@ -13,7 +13,7 @@ import torch
 from pydantic import ValidationError
 from ssga_parser_cascade_seg.classes import ADE20K, PROCEDURAL
 from ssga_parser_cascade_seg.model import LIGHT, RESNET18DILATED, RESNET50DILATED, SceneParser, init_weights
-from ssga_parser_cascade_seg.plugin import FILES, LAYOUTS, LIGHT_WEIGHTS, CascadeSeg, CascadeSegConfig, class_regions, cut_pieces
+from ssga_parser_cascade_seg.plugin import FILES, LAYOUTS, LIGHT_WEIGHTS, CascadeSeg, CascadeSegConfig, class_regions
 
 from ssga_bench import checkpoint_bytes, validate_experiment
 from ssga_bench.testing import RunsCode
@@ -99,7 +99,7 @@ def test_pieces_larger_than_split_px_are_cut_into_compact_parts_of_their_class()
     rgb[:, 30:] = 200  # a colour edge through the large piece
     confidence = np.linspace(0.5, 1.0, classes.size, dtype=np.float32).reshape(classes.shape)
     whole = class_regions(classes, PROCEDURAL, 0, 8, confidence)
-    cut = cut_pieces(whole, rgb, 600, confidence)
+    cut = class_regions(classes, PROCEDURAL, 0, 8, confidence, rgb, split_px=600)
     large = cut.categories == 2
     # SLIC is asked for ceil(1700 / 600) = 3 and keeps the two halves of one colour: parts, not the piece.
     assert large.sum() >= 2 and (~large).sum() == 1, "the large piece in parts, the small one whole"
@@ -112,7 +112,7 @@ def test_pieces_larger_than_split_px_are_cut_into_compact_parts_of_their_class()
     # Each part lies on one side of the colour edge (SLICO follows it).
     assert all(len(np.unique(rgb[cut.mask(k)][:, 0])) == 1 for k in np.flatnonzero(large))
     np.testing.assert_array_equal(cut.boxes, Regions.from_labels(cut.labels).boxes)
-    assert cut_pieces(whole, rgb, 10_000, confidence).labels.tolist() == whole.labels.tolist()
+    assert class_regions(classes, PROCEDURAL, 0, 8, confidence, rgb, split_px=10_000).labels.tolist() == whole.labels.tolist()
 
 
 def test_split_px_cuts_the_parsers_regions_and_says_so():

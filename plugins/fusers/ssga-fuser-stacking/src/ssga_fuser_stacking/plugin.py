@@ -116,8 +116,7 @@ class Stacking(Fuser):
         if truth.shape != scores.shape[1:2] or not np.issubdtype(truth.dtype, np.integer) or truth.min() < 0 or truth.max() >= scores.shape[2]:
             raise InputError(f"fuser 'stacking': expected {scores.shape[1]} true classes in [0, {scores.shape[2]}), got {truth.shape} {truth.dtype}")
         self.sharpness_range = None
-        if self.config.gate != "none":  # the validation views set the gate's scale
-            self._check_probabilities(scores, f"gate {self.config.gate!r}")
+        if self.config.gate != "none":  # the validation views set the gate's scale (_gate checks they are probabilities)
             low, high = np.percentile(self._sharpness(scores), [5.0, 95.0], axis=1)
             self.sharpness_range = np.stack([low, np.maximum(high, low + 1e-12)], axis=1)
         # (Q, F, C): one column of the conditional-logit model per member and input (and gate basis).

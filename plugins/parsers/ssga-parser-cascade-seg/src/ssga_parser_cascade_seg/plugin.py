@@ -304,10 +304,7 @@ class CascadeSeg(Learned, Parser):
             classes[~view.valid_depth()] = -1
         if self._ignored.size:
             classes[np.isin(classes, self._ignored)] = -1
-        regions = class_regions(classes, self.class_names, cfg.min_region_px, cfg.connectivity, confidence)
-        if cfg.split_px:
-            regions = cut_pieces(regions, view.rgb, cfg.split_px, confidence)
-        return regions
+        return class_regions(classes, self.class_names, cfg.min_region_px, cfg.connectivity, confidence, view.rgb, cfg.split_px)
 
 
 
@@ -340,13 +337,18 @@ def _classes(state: Mapping[str, Any], configured: str | None) -> str:
     return next((name for name, names in VOCABULARIES.items() if len(names) == count), configured or RANDOM_CLASSES)
 
 
-def class_regions(classes: np.ndarray, names: tuple[str, ...], min_px: int, connectivity: int = 8, confidence: np.ndarray | None = None) -> Regions:
+def class_regions(
+    classes: np.ndarray, names: tuple[str, ...], min_px: int, connectivity: int = 8, confidence: np.ndarray | None = None,
+    rgb: np.ndarray | None = None, split_px: int = 0,
+) -> Regions:
     """One region per connected piece of each class of a class map (``-1``: no class) with at least ``min_px`` pixels.
 
     Regions are numbered by class index, then in the order OpenCV labels a class's
     pieces (deterministic); smaller pieces get no region. ``categories`` holds each
     region's class index, ``names`` its class name and, with ``confidence`` (the
     predicted class's probability per pixel), ``scores`` its mean over the region.
+    With ``split_px`` (and the image ``rgb``), a piece larger than that is cut into
+    parts of its class in its place (:func:`cut_pieces`).
     """
     import cv2
 
@@ -360,7 +362,13 @@ def class_regions(classes: np.ndarray, names: tuple[str, ...], min_px: int, conn
         inside = pieces > 0
         labels[inside] = lut[pieces[inside]]
         categories.extend([int(c)] * len(keep))
-    k = len(categories)
+    piece_classes = np.asarray(categories, dtype=np.int32)
+    if split_px:
+        if rgb is None:
+            raise InputError("class_regions: split_px needs the image (rgb) to cut the pieces by")
+        labels, piece = cut_pieces(labels, len(piece_classes), rgb, split_px)
+        piece_classes = piece_classes[piece]
+    k = len(piece_classes)
     scores = None
     if confidence is not None:
         known = labels >= 0
@@ -369,27 +377,27 @@ def class_regions(classes: np.ndarray, names: tuple[str, ...], min_px: int, conn
     return Regions(
         labels=labels,
         boxes=boxes_from_labels(labels, k),
-        categories=np.asarray(categories, dtype=np.int32),
-        names=tuple(names[c] for c in categories),
+        categories=piece_classes,
+        names=tuple(names[c] for c in piece_classes),
         scores=scores,
     )
 
 
-def cut_pieces(regions: Regions, rgb: np.ndarray, max_px: int, confidence: np.ndarray | None = None) -> Regions:
-    """``regions`` with each region larger than ``max_px`` pixels cut into ``ceil(area / max_px)`` compact
-    parts of its category: SLICO superpixels of ``rgb`` inside the region (numbered in the region's place,
-    in SLIC's order). ``scores`` (with ``confidence``) are each part's mean again; other fields follow the region.
+def cut_pieces(labels: np.ndarray, count: int, rgb: np.ndarray, max_px: int) -> tuple[np.ndarray, np.ndarray]:
+    """A label map of ``count`` regions with each region larger than ``max_px`` pixels cut into about
+    ``ceil(area / max_px)`` compact parts: SLICO superpixels of ``rgb`` inside the region, numbered in the
+    region's place, in SLIC's order. Returns the new label map and, per new region, the region it is part of.
     """
     from skimage.segmentation import slic  # imported here: keeps plugin discovery light
 
-    labels = np.full(regions.labels.shape, -1, dtype=np.int32)
+    cut_labels = np.full(labels.shape, -1, dtype=np.int32)
     source: list[int] = []  # per new region, the region it is a part of
-    areas = np.bincount(regions.labels[regions.labels >= 0], minlength=len(regions))
-    for r in range(len(regions)):
-        inside = regions.labels == r
+    areas = np.bincount(labels[labels >= 0], minlength=count)
+    for r in range(count):
+        inside = labels == r
         parts = int(np.ceil(areas[r] / max_px))
         if parts <= 1:
-            labels[inside] = len(source)
+            cut_labels[inside] = len(source)
             source.append(r)
             continue
         rows, cols = np.flatnonzero(inside.any(1)), np.flatnonzero(inside.any(0))
@@ -400,21 +408,9 @@ def cut_pieces(regions: Regions, rgb: np.ndarray, max_px: int, confidence: np.nd
         )[mask]  # fmt: skip
         cut[cut == 0] = cut.max(initial=1)  # SLIC labels every pixel of the mask; should one be left, it stays in the region
         present, numbered = np.unique(cut, return_inverse=True)
-        labels[box][mask] = len(source) + numbered.astype(np.int32)
+        cut_labels[box][mask] = len(source) + numbered.astype(np.int32)
         source.extend([r] * len(present))
-    keep = np.asarray(source, dtype=np.int64)
-    scores = regions.scores[keep] if regions.scores is not None else None
-    if confidence is not None and regions.scores is not None:
-        known = labels >= 0
-        sums = np.bincount(labels[known], weights=confidence[known], minlength=len(keep))
-        scores = (sums / np.maximum(np.bincount(labels[known], minlength=len(keep)), 1)).astype(np.float32)
-    return Regions(
-        labels=labels,
-        boxes=boxes_from_labels(labels, len(keep)),
-        categories=regions.categories[keep] if regions.categories is not None else None,
-        names=tuple(regions.names[i] for i in keep) if regions.names is not None else None,
-        scores=scores,
-    )
+    return cut_labels, np.asarray(source, dtype=np.int64)
 
 
 @hookimpl
