@@ -207,7 +207,7 @@ def test_a_training_setting_added_since_keeps_the_keys_of_earlier_runs(tmp_path,
         return {d.name: json.loads((d / "training.json").read_text())["key"] for d in (out / "variants").iterdir()}
 
     plain = keys(tmp_path / "plain")
-    assert TrainingConfig().unkeyed() == {"match_whiten", "match_whiten_parts", "match_whiten_variants"}
+    assert TrainingConfig().unkeyed() == {"match_whiten", "match_whiten_parts", "match_whiten_variants", "match_category_penalty"}
     whitened = keys(tmp_path / "whitened", match_whiten=1.0)
     assert set(whitened) == set(plain) and all(whitened[k] != plain[k] for k in plain)
     # The keys of a training section that never had the setting: what runs stored before it were keyed by.
@@ -215,6 +215,31 @@ def test_a_training_setting_added_since_keeps_the_keys_of_earlier_runs(tmp_path,
     later = TrainingConfig.added_since
     monkeypatch.setattr(TrainingConfig, "model_dump", lambda self, **kw: {k: v for k, v in dump(self, **kw).items() if k not in later})
     assert keys(tmp_path / "before") == plain
+
+
+def test_parts_matched_within_their_category_retrain_only_the_variants_whose_parser_names_categories(tmp_path, dataset, stand_in_registry, monkeypatch):
+    from ssga_bench.variant_training import load_classifier
+    from ssga_core.testing.stages import StripesParser
+
+    def run(out, **training):
+        run_experiment(experiment(stand_in_registry, ("PSD", "SD", "PDS"), classifier="graph-match", **training), dataset, out)
+        folders = {d.name: d for d in (out / "variants").iterdir()}
+        return {name: json.loads((d / "training.json").read_text())["key"] for name, d in folders.items()}, folders
+
+    plain, _ = run(tmp_path / "plain")
+    assert run(tmp_path / "plain", match_category_penalty=2.0)[0] == plain  # stripes name no category: nothing retrained
+    stripes = StripesParser._parse
+    monkeypatch.setattr(StripesParser, "names_categories", True)
+    monkeypatch.setattr(StripesParser, "_parse", lambda self, view: dataclasses.replace(r := stripes(self, view), categories=np.arange(len(r), dtype=np.int32) % 2))
+    named, _ = run(tmp_path / "named")  # a cache of its own: the parser's output changed
+    assert named == plain  # off, the setting is in no key
+    within, folders = run(tmp_path / "named", match_category_penalty=2.0)
+    assert {name for name in named if within[name] != named[name]} == {"PC-ST_PSD", "PC-ST_PDS"}
+    for name, folder in folders.items():
+        matcher = load_classifier(folder, "graph-match")
+        assert (matcher.category_penalty == 2.0) == (name != "PC_SD"), name
+        if name != "PC_SD":
+            assert set(np.unique(matcher.categories)) == {-1, 0, 1}, name
 
 
 def test_whitening_only_the_synthesized_views_retrains_only_the_variants_that_describe_them(tmp_path, dataset, stand_in_registry):

@@ -163,6 +163,15 @@ def test_scene_graph_part_origins_are_source_region_pairs_with_none_for_the_whol
     with pytest.raises(InputError, match="SceneGraph.part_origins"):
         SceneGraph(**ok, part_origins=np.zeros((3, 2), np.float32))
 
+
+def test_scene_graph_categories_are_one_per_node_with_none_for_the_whole_image():
+    ok = dict(boxes=np.zeros((3, 4), np.float32), features=np.zeros((3, 5), np.float32), weights=np.ones(3, np.float32), edges=np.zeros((0, 2), int))
+    assert SceneGraph(**ok).categories is None
+    SceneGraph(**ok, categories=np.array([-1, 4, -1], np.int32))  # a part of unknown category: -1
+    for bad in (np.array([-1, 4], np.int32), np.array([2, 4, 5], np.int32), np.array([-1, 4, 5], np.float32)):
+        with pytest.raises(InputError, match="SceneGraph.categories"):
+            SceneGraph(**ok, categories=bad)
+
 def test_scene_graph_validates_edges_and_needs_the_whole_image():
     ok = dict(boxes=np.zeros((3, 4), np.float32), features=np.zeros((3, 5), np.float32), weights=np.ones(3, np.float32))
     SceneGraph(**ok, edges=np.array([[0, 1], [1, 2]]))

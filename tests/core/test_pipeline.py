@@ -13,7 +13,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from ssga_core import InputError, Pose, Regions, boxes_from_labels, parse_variant
+from ssga_core import InputError, PluginError, Pose, Regions, boxes_from_labels, parse_variant
 from ssga_core.pipeline import BoundVariant, build_graph, table_label
 from ssga_core.testing import make_view
 from ssga_core.testing.stages import PatchColour, RegionColour, ShiftWarp, StripesParser, StripesConfig
@@ -391,6 +391,31 @@ def test_join_split_parts_keeps_the_parts_of_a_parser_that_cuts_pieces_apart_and
     # The same pairs as whole pieces' halves (a parser that does not cut) are joined into one part each.
     whole = dataclasses.replace(paired, parser=type("WholePairs", (PairedStripes,), {"regions_cut_from_pieces": False})(StripesConfig(stripes=8)))
     assert build_graph(whole, view, target).num_nodes < split.num_nodes - 2
+
+
+def test_the_graph_keeps_each_parts_category_through_s_and_none_for_a_parser_that_names_none(view):
+    target = target_right(view, 0.6)
+    named = type("NamedPairs", (PairedStripes,), {"names_categories": True})(StripesConfig(stripes=8))
+    for order in ("PSD", "PDS", "SPD", "DSP"):
+        bound = dataclasses.replace(joining(order), parser=named)
+        real, synthetic = build_graph(bound, view), build_graph(bound, view, target)
+        np.testing.assert_array_equal(real.categories, [-1, *(np.arange(8) // 2)], err_msg=order)
+        assert synthetic.categories[0] == -1 and len(synthetic.categories) == synthetic.num_nodes, order
+        # Each part's category is the pair of stripes it lies in: its box centre's column says which.
+        centre = (synthetic.boxes[1:, 0] + synthetic.boxes[1:, 2]) / 2
+        expected = np.clip((centre + 25.6 * (order[0] == "P")) // 64, 0, 3)
+        np.testing.assert_array_equal(synthetic.categories[1:], expected, err_msg=order)
+        plain = dataclasses.replace(bound, parser=StripesParser(StripesConfig(stripes=8)))
+        assert build_graph(plain, view, target).categories is None, order
+    assert build_graph(bind("SD"), view, target).categories is None  # no parts
+
+
+def test_a_parser_that_says_it_names_categories_and_gives_none_is_refused(view):
+    class Unnamed(StripesParser):
+        names_categories = True
+
+    with pytest.raises(PluginError, match="says its regions carry their categories but gave no Regions.categories"):
+        Unnamed(StripesConfig(stripes=4)).parse(view)
 
 
 def test_joining_unites_touching_parts_of_one_category_and_drops_the_optional_ones_left_alone():

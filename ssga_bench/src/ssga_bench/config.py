@@ -52,7 +52,7 @@ class TrainingConfig(Strict):
     """The per-variant GCN place classifier and its training data."""
 
     model_config = ConfigDict(allow_inf_nan=False)
-    added_since: ClassVar[frozenset[str]] = frozenset({"match_whiten", "match_whiten_parts", "match_whiten_variants"})
+    added_since: ClassVar[frozenset[str]] = frozenset({"match_whiten", "match_whiten_parts", "match_whiten_variants", "match_category_penalty"})
 
     classifier: Literal["gcn", "graph-match"] = Field(
         default="gcn",
@@ -136,6 +136,15 @@ class TrainingConfig(Strict):
         "the synthetic views (S before D: SPD, PSD, SD), where what varies among one place's graphs is what S drew; "
         "those that carry the real view's own features through S (PDS, DSP, DS) and those without S stay plain, "
         "and keep their keys.",
+    )
+    match_category_penalty: float = Field(
+        default=0.0,
+        ge=0.0,
+        le=10.0,
+        description="classifier = 'graph-match', for a parser that names each part's category (cascade-seg, detic, "
+        "semantic): lower the cosine of a query part and a training part of different categories by this before each "
+        "part's best twin is taken (2: a part's twin is of its own category wherever the graph has one); 0: parts "
+        "matched whatever their category. Other variants ignore it and keep their keys.",
     )
     hidden: int = Field(default=256, gt=0, le=8192, description="Hidden width of the GCN.")
     layers: int = Field(default=2, ge=1, le=32, description="Graph-convolution layers.")

@@ -64,6 +64,13 @@ training graphs. A query graph is compared with every training graph:
   pixels it blurred, the share of it that stayed in view) counts less than what tells
   one part from another. The plain scatter of a class's parts would not do: it is mostly
   how one image's parts differ from one another, which is what the match reads.
+* **parts matched within their category** (``category_penalty``): where the parser names
+  each part's category (``SceneGraph.categories``: a segmenter's class, a detector's), the
+  cosine of a query part and a training part of different categories is lowered by this
+  much before best twins are taken (2 or more: a part's twin is of its own category
+  wherever the graph has one). A wall whose texture looks like a floor's then does not
+  pass for it, and a graph without any part of the query part's category scores low for
+  it: what the class says, which superpixels cannot.
 
 The similarity of two graphs is ``whole_weight`` times the first plus the rest times the
 part match (the whole image alone where either graph has no part), and a class scores the
@@ -175,6 +182,8 @@ class GraphMatcher:
         whiten: float | None = None,
         whiten_parts: bool = False,
         part_groups: np.ndarray | None = None,
+        categories: np.ndarray | None = None,
+        category_penalty: float = 0.0,
     ) -> None:
         node_ptr, labels = np.asarray(node_ptr, np.int64), np.asarray(labels, np.int64)
         if (
@@ -202,6 +211,10 @@ class GraphMatcher:
             raise InputError(f"graph matcher: burst_power must be 0 or more, got {burst_power}")
         if whiten is not None and not (np.isfinite(whiten) and whiten > 0):
             raise InputError(f"graph matcher: whiten is a shrinkage (above 0), got {whiten}")
+        if categories is not None and np.shape(categories) != (len(features),):
+            raise InputError(f"graph matcher: expected a category for each of the {len(features)} training nodes, got {np.shape(categories)}")
+        if not np.isfinite(category_penalty) or category_penalty < 0:
+            raise InputError(f"graph matcher: category_penalty is a cosine to subtract (0 or more), got {category_penalty}")
         self.features, self.centres = np.asarray(features, np.float32), np.asarray(centres, np.float32)
         self.node_ptr, self.labels = node_ptr, labels
         self.num_classes, self.whole_weight = num_classes, whole_weight
@@ -253,6 +266,10 @@ class GraphMatcher:
         whole_space = self.whiten_parts and self._part_whitening is None and len(self._parts)
         self._part_mean = self._parts.mean(axis=0) if whole_space else None
         self._compared_parts = self._compared(self._parts)
+        # Parts matched within their category: each training node's category (-1: none named); None: not used.
+        self.category_penalty = float(category_penalty)
+        self.categories = None if categories is None or not self.category_penalty else np.asarray(categories, np.int32)
+        self._part_categories = None if self.categories is None else self.categories[is_part]
 
     @classmethod
     def of(
@@ -271,19 +288,25 @@ class GraphMatcher:
         whiten: float | None = None,
         whiten_parts: bool = False,
         part_groups: np.ndarray | None = None,
+        category_penalty: float = 0.0,
     ) -> GraphMatcher:
         """The matcher of ``graphs``; ``weigh_drawn``: judge the query's parts where each graph was drawn, each graph's
         weighted mean starting from ``drawn_prior`` parts' worth of its plain mean; ``burst``: count the parts of an
         image above this cosine to one another as one repeated element (``burst_power``: how far); ``whiten``: whiten
         the whole images by their scatter within each class, shrunk by this (``whiten_parts``: the parts too, by
-        their scatter within ``part_groups`` where given, one group id per training part, -1 for none)."""
+        their scatter within ``part_groups`` where given, one group id per training part, -1 for none);
+        ``category_penalty``: lower the cosine of two parts of different categories by this (parts matched within
+        their category), where the graphs carry them."""
         node_ptr = np.concatenate([[0], np.cumsum([g.num_nodes for g in graphs])])
         features = _unit(np.concatenate([g.features for g in graphs])) if graphs else np.zeros((0, 1), np.float32)
         centres = np.concatenate([part_centres(g) for g in graphs]) if graphs else np.zeros((0, 2), np.float32)
         drawn = drawn_grids(graphs) if weigh_drawn else None
+        categories = None
+        if category_penalty and any(g.categories is not None for g in graphs):
+            categories = np.concatenate([g.categories if g.categories is not None else np.full(g.num_nodes, -1, np.int32) for g in graphs])
         return cls(
             features, centres, node_ptr, np.asarray(labels), num_classes, whole_weight, layout_weight, layout_sigma, standardise, drawn, drawn_prior,
-            burst, burst_power, whiten, whiten_parts, part_groups,
+            burst, burst_power, whiten, whiten_parts, part_groups, categories, category_penalty,
         )
 
     def state_dict(self) -> dict[str, np.ndarray]:
@@ -301,6 +324,7 @@ class GraphMatcher:
             **({} if self.burst is None else {"burst": np.array(self.burst), "burst_power": np.array(self.burst_power)}),
             **({} if self.whiten is None else {"whiten": np.array(self.whiten), "whiten_parts": np.array(self.whiten_parts)}),
             **({} if self.part_groups is None else {"part_groups": self.part_groups}),
+            **({} if self.categories is None else {"categories": self.categories, "category_penalty": np.array(self.category_penalty)}),
         }
 
     @classmethod
@@ -324,6 +348,8 @@ class GraphMatcher:
                 float(state["whiten"]) if "whiten" in state else None,
                 bool(state.get("whiten_parts", False)),
                 state.get("part_groups"),
+                state.get("categories"),
+                float(state.get("category_penalty", 0.0)),
             )
         except KeyError as exc:
             raise InputError(f"graph matcher: saved state without {exc}") from None
@@ -394,16 +420,26 @@ class GraphMatcher:
         if not len(parts) or not len(self._with_parts):
             return similarity
         pairs = self._compared(parts) @ self._compared_parts.T  # (query parts, every training part)
+        penalty = self._across_categories(graph)
         centres = part_centres(graph)[1:]
         weights = None if self._drawn_with_parts is None else self._drawn_share(self._drawn_with_parts, centres).T
         votes = None if self.burst is None else burst_weights(parts, self.burst, self.burst_power)
-        part_match = self._both_ways(pairs, weights, votes)
+        part_match = self._both_ways(pairs - penalty, weights, votes)
         if self.layout_weight > 0:
             nearness = np.exp(self._in_place(centres) @ self._train_in_place)
-            part_match = (1 - self.layout_weight) * part_match + self.layout_weight * self._both_ways(pairs * nearness, weights, votes)
+            in_place = self._both_ways(pairs * nearness - penalty, weights, votes)
+            part_match = (1 - self.layout_weight) * part_match + self.layout_weight * in_place
         matched = similarity.copy()
         matched[self._with_parts] = self.whole_weight * similarity[self._with_parts] + (1 - self.whole_weight) * part_match
         return matched
+
+    def _across_categories(self, graph: SceneGraph) -> np.ndarray | float:
+        """``(query parts, every training part)``: ``category_penalty`` where both parts name a category and they differ,
+        else 0 (parts matched within their category); 0 where either side names none."""
+        if self._part_categories is None or graph.categories is None:
+            return 0.0
+        query, train = graph.categories[1:, None], self._part_categories[None, :]
+        return np.float32(self.category_penalty) * ((query != train) & (query >= 0) & (train >= 0))
 
     def class_similarities(self, graphs: Sequence[SceneGraph]) -> np.ndarray:
         """``(len(graphs), classes)``: each class's best training graph (a class without one: 1 below the query's worst)."""

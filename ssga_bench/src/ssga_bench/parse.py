@@ -145,7 +145,7 @@ def regions_record(regions: Regions, graph: SceneGraph) -> list[dict[str, Any]]:
             "box": _finite(regions.boxes[k], 3),
             "area": int(areas[k]),
             "centroid": _finite(centroids[k], 2),
-            "category": None if regions.categories is None else int(regions.categories[k]),
+            "category": None if regions.categories is None or regions.categories[k] < 0 else int(regions.categories[k]),
             "name": None if regions.names is None else regions.names[k],
             "score": None if regions.scores is None else round(float(regions.scores[k]), 6),
             "weight": round(float(graph.weights[k + 1]), 6),

@@ -94,7 +94,7 @@ def variant_key(rv: ResolvedVariant, training: TrainingConfig, dataset: Dataset,
         "extra": extra,
         "variant": str(rv.variant),
         "stages": {k: [s.cls.name, s.config.model_dump(mode="json", exclude=s.config.unkeyed())] for k, s in sorted(rv.stages.items())},
-        "training": training.model_dump(mode="json", exclude=_unused_options(rv, training) | _unused_whitening(rv, training) | training.unkeyed()),
+        "training": training.model_dump(mode="json", exclude=_unused_options(rv, training) | _unused_match_settings(rv, training) | training.unkeyed()),
         "dataset": dataset.header,
         "plan": hashlib.blake2b((dataset.root / "plan.json").read_bytes(), digest_size=8).hexdigest(),
     }
@@ -136,10 +136,15 @@ def whitens(rv: ResolvedVariant, training: TrainingConfig) -> bool:
     return training.match_whiten is not None and (training.match_whiten_variants == "all" or rv.variant.describes_synthesized_views)
 
 
-def _unused_whitening(rv: ResolvedVariant, training: TrainingConfig) -> set[str]:
-    """The whitening settings, left out of the key of a variant ``match_whiten_variants`` leaves plain: trying
-    it retrains only the variants it whitens."""
-    return set(WHITENING) if training.match_whiten is not None and not whitens(rv, training) else set()
+def _unused_match_settings(rv: ResolvedVariant, training: TrainingConfig) -> set[str]:
+    """Graph-matching settings left out of the key of a variant they cannot change, so that trying one retrains only
+    the variants it changes: the whitening where ``match_whiten_variants`` leaves the variant plain, the category
+    penalty where its parser names no categories (``Parser.names_categories``) or it has none."""
+    unused = set(WHITENING) if training.match_whiten is not None and not whitens(rv, training) else set()
+    parser = rv.stages.get("parser")
+    if parser is None or not parser.cls.names_categories:
+        unused.add("match_category_penalty")
+    return unused
 
 
 def carried_part_groups(graphs: Sequence[SceneGraph], labels: Sequence[int], sources: Sequence[Sequence[int]]) -> np.ndarray | None:
@@ -183,6 +188,7 @@ def _fit_classifier(
             "match_burst": training.match_burst,
             "match_burst_power": training.match_burst_power,
             **({} if training.match_whiten is None else {"match_whiten": training.match_whiten, "match_whiten_parts": training.match_whiten_parts}),
+            **({"match_category_penalty": training.match_category_penalty} if training.match_category_penalty else {}),
         }
         matcher = GraphMatcher.of(
             graphs,
@@ -199,6 +205,7 @@ def _fit_classifier(
             training.match_whiten,
             bool(training.match_whiten_parts),
             part_groups if training.match_whiten_parts == "carried" else None,
+            training.match_category_penalty,
         )
         atomic_write_bytes(folder / CLASSIFIER_FILES["graph-match"], npz_bytes(matcher.state_dict()))
         return rule

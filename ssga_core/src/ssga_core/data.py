@@ -420,6 +420,9 @@ class SceneGraph:
             for the whole image and for parts parsed on a synthetic view. It follows a part
             through S, so the pseudo-views of one class show how one real part varies under
             synthesis. None where no node comes from a real view's parse.
+        categories: ``(N,)`` int32: each node's semantic category as its parser named it
+            (``Regions.categories``), -1 for the whole image; None where the parser names none
+            (superpixels). A matcher can then pair a part only with parts of its own category.
     """
 
     WHOLE_IMAGE: ClassVar[int] = 0
@@ -430,6 +433,7 @@ class SceneGraph:
     edges: np.ndarray
     drawn: np.ndarray | None = None
     part_origins: np.ndarray | None = None
+    categories: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         n = len(self.boxes) if isinstance(self.boxes, np.ndarray) else -1
@@ -452,6 +456,10 @@ class SceneGraph:
             _check_array("SceneGraph.part_origins", self.part_origins, (n, 2), (np.integer,))
             if np.any(self.part_origins[self.WHOLE_IMAGE] != -1) or np.any((self.part_origins < 0) & (self.part_origins[:, ::-1] >= 0)):
                 raise InputError("SceneGraph.part_origins: expected (source, region) pairs, both >= 0 or both -1, and -1 for the whole image")
+        if self.categories is not None:
+            _check_array("SceneGraph.categories", self.categories, (n,), (np.integer,))
+            if self.categories[self.WHOLE_IMAGE] != -1:
+                raise InputError("SceneGraph.categories: expected -1 for the whole image, which has no category")
 
     @property
     def num_nodes(self) -> int:

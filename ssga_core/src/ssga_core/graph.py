@@ -48,15 +48,24 @@ DRAWN_BLOCKS = 16
 
 
 def assemble(
-    camera: Camera, part_boxes: np.ndarray, features: np.ndarray, drawn: np.ndarray | None = None, part_origins: np.ndarray | None = None
+    camera: Camera,
+    part_boxes: np.ndarray,
+    features: np.ndarray,
+    drawn: np.ndarray | None = None,
+    part_origins: np.ndarray | None = None,
+    part_categories: np.ndarray | None = None,
 ) -> SceneGraph:
     """The scene graph of a whole-image node (features row 0) and parts (rows 1..K); ``drawn``:
     where a synthetic view was drawn (:meth:`~ssga_core.View.drawn_blocks`); ``part_origins``:
-    ``(K, 2)`` each part's (source view, region), -1 for none (``SceneGraph.part_origins``)."""
+    ``(K, 2)`` each part's (source view, region), -1 for none (``SceneGraph.part_origins``);
+    ``part_categories``: ``(K,)`` each part's category (``Regions.categories``)."""
     boxes = np.concatenate([whole_image_box(camera)[None], np.asarray(part_boxes, dtype=np.float32).reshape(-1, 4)])
     origins = None
     if part_origins is not None and np.any(np.asarray(part_origins) >= 0):
         origins = np.concatenate([np.full((1, 2), -1, np.int32), np.asarray(part_origins, np.int32).reshape(-1, 2)])
+    categories = None
+    if part_categories is not None:
+        categories = np.concatenate([[-1], np.asarray(part_categories).reshape(-1)]).astype(np.int32)
     return SceneGraph(
         boxes=boxes,
         features=np.asarray(features, dtype=np.float32),
@@ -64,4 +73,5 @@ def assemble(
         edges=proximity_edges(boxes, camera.width),
         drawn=drawn,
         part_origins=origins,
+        categories=categories,
     )

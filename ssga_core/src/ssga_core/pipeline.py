@@ -570,7 +570,8 @@ class _State:
             features = self.region_features
         boxes = regions.boxes if regions is not None else np.zeros((0, 4), np.float32)
         drawn = self.view.drawn_blocks(DRAWN_BLOCKS) if self.view.synthetic else None
-        return assemble(camera, boxes, features, drawn, origins)
+        categories = regions.categories if regions is not None else None
+        return assemble(camera, boxes, features, drawn, origins, categories)
 
 
 def carry_regions(regions: Regions, syn: Synthesis) -> tuple[np.ndarray, Regions]:

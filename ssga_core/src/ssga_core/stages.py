@@ -25,7 +25,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
 from ssga_core.data import Data, LocalFeatures, Regions, Synthesis, View
-from ssga_core.errors import InputError
+from ssga_core.errors import InputError, PluginError
 from ssga_core.geometry import Pose
 
 class KeyedConfig(BaseModel):
@@ -100,6 +100,10 @@ class Parser(Stage):
     kind = "parser"
     consumes = frozenset({Data.RGB})
     produces = frozenset({Data.REGIONS})
+    names_categories: bool = False
+    """True when every region it gives carries its semantic category (``Regions.categories``), as a
+    segmenter's or a detector's do; the scene graph keeps them (``SceneGraph.categories``), and graph
+    matching can pair a part only with parts of its own category. False for superpixels."""
     regions_are_category_pieces: bool = False
     """True when each region is one connected piece of one category (``Regions.categories``), as a
     segmenter's: two touching regions of one category are then one region split apart, which is how
@@ -133,6 +137,8 @@ class Parser(Stage):
             raise InputError(
                 f"parser {self.name!r} returned labels of shape {regions.labels.shape} for a {view.camera.shape} image"
             )
+        if self.names_categories and regions.categories is None:
+            raise PluginError(f"parser {self.name!r} says its regions carry their categories but gave no Regions.categories")
         return regions
 
     @abstractmethod

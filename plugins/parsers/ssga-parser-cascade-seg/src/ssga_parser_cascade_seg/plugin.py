@@ -163,6 +163,7 @@ class CascadeSeg(Learned, Parser):
     name = "cascade-seg"
     abbrev = "SE"  # the paper's tables: "P-SE (PDS)"
     Config = CascadeSegConfig
+    names_categories = True  # each region's class index in the vocabulary
     regions_are_category_pieces = True  # one region per connected piece of a class (class_regions)
     reloaded = ("net",)
     layouts = LAYOUTS

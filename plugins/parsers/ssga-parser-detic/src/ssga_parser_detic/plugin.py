@@ -97,6 +97,7 @@ class DeticParser(Learned, Parser):
     name = "detic"
     abbrev = "DE"  # the paper's tables: "P-DE (PDS)"
     Config = DeticConfig
+    names_categories = True  # each detection's class in the vocabulary
     reloaded = ("net", "names")
     layouts = LAYOUTS
     presets = {

@@ -44,6 +44,7 @@ class SemanticParser(Parser):
     name = "semantic"
     abbrev = "GT"
     Config = SemanticConfig
+    names_categories = True  # each region's semantic id (-1 where the sensor knows none)
     consumes = frozenset({Data.RGB, Data.SEMANTIC})
     presets = {
         "instances": {"by": "instance"},
@@ -74,7 +75,7 @@ class SemanticParser(Parser):
         lut[keep] = np.arange(count, dtype=np.int32)
         labels = np.full(ids.shape, -1, dtype=np.int32)
         labels[valid] = lut[inverse]
-        categories = None
+        categories = np.full(count, -1, np.int32)  # a view with instance ids alone: no region's category is known
         if view.semantic is not None:
             categories = (present[keep] if cfg.by == "category" else _majority(labels, view.semantic, count)).astype(np.int32)
         return Regions(labels=labels, boxes=boxes_from_labels(labels, count), categories=categories)
