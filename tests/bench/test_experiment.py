@@ -238,6 +238,7 @@ def test_parts_matched_within_their_category_retrain_only_the_variants_whose_par
     for name, folder in folders.items():
         matcher = load_classifier(folder, "graph-match")
         assert (matcher.category_penalty == 2.0) == (name != "PC_SD"), name
+        assert ("match_category_penalty" in json.loads((folder / "training.json").read_text())) == (name != "PC_SD"), name
         if name != "PC_SD":
             assert set(np.unique(matcher.categories)) == {-1, 0, 1}, name
 

@@ -188,7 +188,8 @@ def _fit_classifier(
             "match_burst": training.match_burst,
             "match_burst_power": training.match_burst_power,
             **({} if training.match_whiten is None else {"match_whiten": training.match_whiten, "match_whiten_parts": training.match_whiten_parts}),
-            **({"match_category_penalty": training.match_category_penalty} if training.match_category_penalty else {}),
+            # Recorded where it acts: a variant whose parser names no categories matches without it.
+            **({"match_category_penalty": training.match_category_penalty} if training.match_category_penalty and any(g.categories is not None for g in graphs) else {}),
         }
         matcher = GraphMatcher.of(
             graphs,
