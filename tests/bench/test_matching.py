@@ -51,8 +51,8 @@ def naive_similarity(
     if query.num_parts == 0 or train.num_parts == 0:
         return whole
 
-    def both_ways(pairs):
-        return (pairs.max(axis=1).mean() + pairs.max(axis=0).mean()) / 2
+    def both_ways(query_side, train_side):
+        return (query_side.max(axis=1).mean() + train_side.max(axis=0).mean()) / 2
 
     pairs = np.array([[unit(a) @ unit(b) for b in train.features[1:]] for a in query.features[1:]])
     nearness = np.array(
@@ -61,11 +61,17 @@ def naive_similarity(
             for a in query.boxes[1:]
         ]
     )
-    across = np.zeros_like(pairs)
+    # A part is kept to its category only where the other side holds one of it: each query part's twin in the
+    # training graph (q), each training part's twin in the query (t).
+    q, t = np.zeros_like(pairs), np.zeros_like(pairs)
     if query.categories is not None and train.categories is not None:
-        across = np.array([[float(a >= 0 and b >= 0 and a != b) for b in train.categories[1:]] for a in query.categories[1:]])
-    penalty = category_penalty * across
-    parts = (1 - layout_weight) * both_ways(pairs - penalty) + layout_weight * both_ways(pairs * nearness - penalty)
+        in_train, in_query = set(train.categories[1:].tolist()), set(query.categories[1:].tolist())
+        for i, a in enumerate(query.categories[1:]):
+            for j, b in enumerate(train.categories[1:]):
+                across = a >= 0 and b >= 0 and a != b
+                q[i, j], t[i, j] = category_penalty * (across and a in in_train), category_penalty * (across and b in in_query)
+    plain = both_ways(pairs - q, pairs - t)
+    parts = (1 - layout_weight) * plain + layout_weight * both_ways(pairs * nearness - q, pairs * nearness - t)
     return whole_weight * whole + (1 - whole_weight) * parts
 
 
@@ -336,18 +342,22 @@ def test_parts_matched_within_their_category_are_the_rule_written_out(layout_wei
         GraphMatcher.of(train, [0, 1, 2, 0, 1], 3, 0.3, category_penalty=-1.0)
 
 
-def test_a_part_of_another_category_is_no_twin():
-    # The query's wall has the texture of place 0's floor; place 1's wall is a little different.
-    # Matched whatever the category, the floor passes for the wall and place 0 wins.
-    whole, texture, door = [1, 1, 1, 1], [0, 0, 1, 0], [0, 0, 0, 1]
+def test_a_part_of_another_category_is_no_twin_where_the_graph_holds_one_of_its_own():
+    # The query's wall has the texture of place 0's floor; place 0's wall looks otherwise, place 1's a
+    # little different. Matched whatever the category, the floor passes for the wall and place 0 wins.
+    whole, texture, door, plain = [1, 1, 1, 1, 0], [0, 0, 1, 0, 0], [0, 0, 0, 1, 0], [0, 0, 0, 0, 1]
     wall, floor, doorway = 0, 1, 2
-    place0 = with_categories(graph(whole, texture, door), floor, doorway)
-    place1 = with_categories(graph(whole, [0, 0.5, 1, 0], door), wall, doorway)
+    place0 = with_categories(graph(whole, texture, door, plain), floor, doorway, wall)
+    place1 = with_categories(graph(whole, [0, 0.5, 1, 0, 0], door, plain), wall, doorway, floor)
     query = with_categories(graph(whole, texture, door), wall, doorway)
     anywhere = GraphMatcher.of([place0, place1], [0, 1], 2, whole_weight=0.0)
     assert anywhere.predict([query]).argmax() == 0
     within = GraphMatcher.of([place0, place1], [0, 1], 2, whole_weight=0.0, category_penalty=2.0)
     assert within.predict([query]).argmax() == 1
+    # A graph that holds no wall is judged on its parts' looks, as without the penalty: its floor is the twin.
+    no_wall = with_categories(graph(whole, texture, door), floor, doorway)
+    lone = GraphMatcher.of([no_wall], [0], 1, whole_weight=0.0, category_penalty=2.0)
+    assert lone.similarities(query)[0] == pytest.approx(GraphMatcher.of([no_wall], [0], 1, whole_weight=0.0).similarities(query)[0])
 
 
 def test_parts_decide_where_the_whole_images_tie():

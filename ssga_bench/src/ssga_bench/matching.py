@@ -67,10 +67,12 @@ training graphs. A query graph is compared with every training graph:
 * **parts matched within their category** (``category_penalty``): where the parser names
   each part's category (``SceneGraph.categories``: a segmenter's class, a detector's), the
   cosine of a query part and a training part of different categories is lowered by this
-  much before best twins are taken (2 or more: a part's twin is of its own category
-  wherever the graph has one). A wall whose texture looks like a floor's then does not
-  pass for it, and a graph without any part of the query part's category scores low for
-  it: what the class says, which superpixels cannot.
+  much before best twins are taken, in each training graph that holds a part of the query
+  part's category (2 or more: a part's twin is of its own category wherever the graph has
+  one). A wall whose texture looks like a floor's then does not pass for it: what the class
+  says, which superpixels cannot. A graph without the category is judged on its parts'
+  looks as before: lowered there too, the part's vote would turn into whether the graph
+  holds the category, which a pseudo-view's holes often decide.
 
 The similarity of two graphs is ``whole_weight`` times the first plus the rest times the
 part match (the whole image alone where either graph has no part), and a class scores the
@@ -387,19 +389,24 @@ class GraphMatcher:
         row, col = (np.clip((centres[:, k] * blocks).astype(np.intp), 0, blocks - 1) for k in (1, 0))
         return grids[np.arange(len(grids)), row, col] if diagonal else grids[:, row, col]
 
-    def _both_ways(self, pairs: np.ndarray, query_weights: np.ndarray | None = None, query_votes: np.ndarray | None = None) -> np.ndarray:
+    def _both_ways(
+        self, pairs: np.ndarray, query_weights: np.ndarray | None = None, query_votes: np.ndarray | None = None, train_pairs: np.ndarray | None = None
+    ) -> np.ndarray:
         """``(training graphs with parts,)``: from ``(query parts, every training part)`` similarities, each query part's
         best twin in each training graph and each training part's in the query, both means averaged; with
         standardised parts, each query part's twins and the training graphs' means are standardised over the graphs first.
         ``query_weights`` (query parts, training graphs with parts), with parts judged where drawn: how much each query
         part counts in each graph's mean (plus ``drawn_prior`` parts at the plain mean); each training part then counts
         by its own graph's drawn share at it. ``query_votes`` (query parts,), with repeated parts counted once: each query
-        part's share of a vote, in every mean of the query's side (each training part's is set once, in ``__init__``)."""
+        part's share of a vote, in every mean of the query's side (each training part's is set once, in ``__init__``).
+        ``train_pairs``: the similarities each training part's twin in the query is taken from, where they differ from
+        ``pairs`` (parts matched within their category)."""
         best_twins = np.maximum.reduceat(pairs, self._part_starts, axis=1)  # (query parts, training graphs with parts)
+        train_best = (pairs if train_pairs is None else train_pairs).max(axis=0)
         if self._train_part_votes is None:
-            train_to_query = np.add.reduceat(pairs.max(axis=0), self._part_starts) / self._part_counts[self._with_parts]
+            train_to_query = np.add.reduceat(train_best, self._part_starts) / self._part_counts[self._with_parts]
         else:
-            train_to_query = np.add.reduceat(pairs.max(axis=0) * self._train_part_votes, self._part_starts) / self._train_vote_totals
+            train_to_query = np.add.reduceat(train_best * self._train_part_votes, self._part_starts) / self._train_vote_totals
         if self.standardise:
             best_twins, train_to_query = standardised(best_twins, axis=1), standardised(train_to_query, axis=0)
         plain = best_twins.mean(axis=0) if query_votes is None else query_votes @ best_twins / query_votes.sum()
@@ -420,26 +427,35 @@ class GraphMatcher:
         if not len(parts) or not len(self._with_parts):
             return similarity
         pairs = self._compared(parts) @ self._compared_parts.T  # (query parts, every training part)
-        penalty = self._across_categories(graph)
+        query_side, train_side = self._across_categories(graph)
         centres = part_centres(graph)[1:]
         weights = None if self._drawn_with_parts is None else self._drawn_share(self._drawn_with_parts, centres).T
         votes = None if self.burst is None else burst_weights(parts, self.burst, self.burst_power)
-        part_match = self._both_ways(pairs - penalty, weights, votes)
+        part_match = self._both_ways(pairs - query_side, weights, votes, pairs - train_side)
         if self.layout_weight > 0:
             nearness = np.exp(self._in_place(centres) @ self._train_in_place)
-            in_place = self._both_ways(pairs * nearness - penalty, weights, votes)
+            in_place = self._both_ways(pairs * nearness - query_side, weights, votes, pairs * nearness - train_side)
             part_match = (1 - self.layout_weight) * part_match + self.layout_weight * in_place
         matched = similarity.copy()
         matched[self._with_parts] = self.whole_weight * similarity[self._with_parts] + (1 - self.whole_weight) * part_match
         return matched
 
-    def _across_categories(self, graph: SceneGraph) -> np.ndarray | float:
-        """``(query parts, every training part)``: ``category_penalty`` where both parts name a category and they differ,
-        else 0 (parts matched within their category); 0 where either side names none."""
+    def _across_categories(self, graph: SceneGraph) -> tuple[np.ndarray | float, np.ndarray | float]:
+        """Two ``(query parts, every training part)`` penalties (parts matched within their category), each
+        ``category_penalty`` where both parts name a category and they differ, else 0: for each query part's twin in
+        a training graph, where that graph holds a part of the query part's category; for each training part's twin
+        in the query, where the query holds one of the training part's. Both 0 where either side names none."""
         if self._part_categories is None or graph.categories is None:
-            return 0.0
+            return 0.0, 0.0
         query, train = graph.categories[1:, None], self._part_categories[None, :]
-        return np.float32(self.category_penalty) * ((query != train) & (query >= 0) & (train >= 0))
+        same = (query == train) & (query >= 0)
+        across = ~same & (query >= 0) & (train >= 0)
+        # Only where the other side holds the category: a graph without it is judged on its parts' looks, not on
+        # lacking the category (a pseudo-view's holes leave out whole categories the query sees).
+        graph_holds = np.repeat(np.logical_or.reduceat(same, self._part_starts, axis=1), self._part_counts[self._with_parts], axis=1)
+        query_holds = same.any(axis=0, keepdims=True)
+        penalty = np.float32(self.category_penalty)
+        return penalty * (across & graph_holds), penalty * (across & query_holds)
 
     def class_similarities(self, graphs: Sequence[SceneGraph]) -> np.ndarray:
         """``(len(graphs), classes)``: each class's best training graph (a class without one: 1 below the query's worst)."""
