@@ -142,9 +142,11 @@ class TrainingConfig(Strict):
         ge=0.0,
         le=10.0,
         description="classifier = 'graph-match', for a parser that names each part's category (cascade-seg, detic, "
-        "semantic): lower the cosine of a query part and a training part of different categories by this before each "
-        "part's best twin is taken (2: a part's twin is of its own category wherever the graph has one); 0: parts "
-        "matched whatever their category. Other variants ignore it and keep their keys.",
+        "semantic): lower the cosine of a query part and a training part of different categories by this before their "
+        "best twins are taken, where the other side holds a part of the category (2: a part's twin is of its own "
+        "category wherever the other side has one); 0: parts matched whatever their category. Pays where the "
+        "categories are right (ground truth), not with cascade-seg's light network. Other variants ignore it and "
+        "keep their keys.",
     )
     hidden: int = Field(default=256, gt=0, le=8192, description="Hidden width of the GCN.")
     layers: int = Field(default=2, ge=1, le=32, description="Graph-convolution layers.")
