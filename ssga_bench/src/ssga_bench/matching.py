@@ -73,8 +73,9 @@ training graphs. A query graph is compared with every training graph:
   whose texture looks like a floor's then does not pass for it: what the class says, which
   superpixels cannot. A graph without the category is judged on its parts' looks as before:
   lowered there too, the part's vote would turn into whether the graph holds the category,
-  which a pseudo-view's holes decide as often as the place (with ground-truth classes on
-  the `paper` preset's homes 161-162: +1.1 to +1.4 MRR points so, -3.7 to -6.3 lowered everywhere).
+  and a pseudo-view's holes leave out categories its place holds (with ground-truth classes
+  on the `paper` preset's homes 161-162: +1.1 to +1.4 MRR points so, -3.7 to -6.3 lowered
+  everywhere).
 
 The similarity of two graphs is ``whole_weight`` times the first plus the rest times the
 part match (the whole image alone where either graph has no part), and a class scores the
