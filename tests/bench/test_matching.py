@@ -61,18 +61,24 @@ def naive_similarity(
             for a in query.boxes[1:]
         ]
     )
-    # A part is kept to its category only where the other side holds one of it: each query part's twin in the
-    # training graph (q), each training part's twin in the query (t).
-    q, t = np.zeros_like(pairs), np.zeros_like(pairs)
+    q, t = across_categories(query, train, category_penalty)
+    plain = both_ways(pairs - q, pairs - t)
+    parts = (1 - layout_weight) * plain + layout_weight * both_ways(pairs * nearness - q, pairs * nearness - t)
+    return whole_weight * whole + (1 - whole_weight) * parts
+
+
+def across_categories(query: SceneGraph, train: SceneGraph, penalty: float) -> tuple[np.ndarray, np.ndarray]:
+    """The penalty on each (query part, training part) pair of different categories, one pair at a time, for each
+    query part's twin in the training graph (where that graph holds a part of its category) and for each training
+    part's twin in the query (where the query holds one of its)."""
+    q, t = np.zeros((query.num_parts, train.num_parts)), np.zeros((query.num_parts, train.num_parts))
     if query.categories is not None and train.categories is not None:
         in_train, in_query = set(train.categories[1:].tolist()), set(query.categories[1:].tolist())
         for i, a in enumerate(query.categories[1:]):
             for j, b in enumerate(train.categories[1:]):
                 across = a >= 0 and b >= 0 and a != b
-                q[i, j], t[i, j] = category_penalty * (across and a in in_train), category_penalty * (across and b in in_query)
-    plain = both_ways(pairs - q, pairs - t)
-    parts = (1 - layout_weight) * plain + layout_weight * both_ways(pairs * nearness - q, pairs * nearness - t)
-    return whole_weight * whole + (1 - whole_weight) * parts
+                q[i, j], t[i, j] = penalty * (across and a in in_train), penalty * (across and b in in_query)
+    return q, t
 
 
 def z(x):
@@ -106,6 +112,7 @@ def naive_standardised(
     prior: float = 0.0,
     burst: float | None = None,
     burst_power: float = 1.0,
+    category_penalty: float = 0.0,
 ) -> np.ndarray:
     """Standardised parts, one pair at a time: each query part's best twins and the training parts' mean best twins
     standardised over the training graphs (with parts), then mixed as the plain rule mixes them; judged where drawn,
@@ -124,10 +131,11 @@ def naive_standardised(
                 pairs = pairs * np.array(
                     [[np.exp(-np.sum((centre(a) - centre(b)) ** 2) / (2 * 0.3**2)) for b in train[i].boxes[1:]] for a in query.boxes[1:]]
                 )
-            twins.append(pairs.max(axis=1))
+            q, t = across_categories(query, train[i], category_penalty)
+            twins.append((pairs - q).max(axis=1))
             own = [drawn_at(train[i], box) if judged_where_drawn else 1.0 for box in train[i].boxes[1:]]
             own = np.multiply(own, repeat_votes(train[i], burst, burst_power))
-            means.append(np.sum(pairs.max(axis=0) * own) / np.sum(own))
+            means.append(np.sum((pairs - t).max(axis=0) * own) / np.sum(own))
         per_part = np.array([z(row) for row in np.array(twins).T])  # (query parts, graphs with parts), standardised
         votes = np.array(repeat_votes(query, burst, burst_power))[:, None]
         plain = (votes * per_part).sum(axis=0) / votes.sum()
@@ -173,6 +181,15 @@ def test_repeated_parts_counted_once_are_the_rule_written_out(layout_weight, pri
         expected = naive_standardised(q, train, 0.0, layout_weight, judged_where_drawn=True, prior=prior, burst=burst, burst_power=burst_power)
         np.testing.assert_allclose(matcher.similarities(q), expected, rtol=1e-4, atol=1e-4)
         assert not np.allclose(matcher.similarities(q), every_part.similarities(q))
+    # The `paper` preset's rule with parts matched within their category (categories 0-2, -1 unknown).
+    named = [with_categories(t, *rng.integers(-1, 3, t.num_parts)) for t in train]
+    within = GraphMatcher.of(
+        named, labels, 4, 0.0, layout_weight, standardise=True, weigh_drawn=True, drawn_prior=prior, burst=burst, burst_power=burst_power, category_penalty=2.0
+    )
+    for q in [with_categories(g, *rng.integers(-1, 3, g.num_parts)) for g in (repeating(rng, 6), repeating(rng, 4))]:
+        expected = naive_standardised(q, named, 0.0, layout_weight, True, prior, burst, burst_power, category_penalty=2.0)
+        np.testing.assert_allclose(within.similarities(q), expected, rtol=1e-4, atol=1e-4)
+        assert not np.allclose(within.similarities(q), matcher.similarities(q))
     # Parts that repeat nothing (no two above the threshold) vote as they did.
     distinct = [graph(*np.eye(6)[: 1 + k]) for k in (3, 5, 2)]
     q = graph(*np.eye(6)[[0, 2, 4, 5]])
