@@ -272,8 +272,8 @@ class GraphMatcher:
         self._part_mean = self._parts.mean(axis=0) if whole_space else None
         self._compared_parts = self._compared(self._parts)
         # Parts matched within their category: each training node's category (-1: none named); None: not used.
-        self.category_penalty = float(category_penalty)
-        self.categories = None if categories is None or not self.category_penalty else np.asarray(categories, np.int32)
+        self.categories = None if categories is None or not category_penalty else np.asarray(categories, np.int32)
+        self.category_penalty = float(category_penalty) if self.categories is not None else 0.0
         self._part_categories = None if self.categories is None else self.categories[is_part]
 
     @classmethod
@@ -430,26 +430,32 @@ class GraphMatcher:
         if not len(parts) or not len(self._with_parts):
             return similarity
         pairs = self._compared(parts) @ self._compared_parts.T  # (query parts, every training part)
-        query_side, train_side = self._across_categories(graph)
+        penalties = self._across_categories(graph)
         centres = part_centres(graph)[1:]
         weights = None if self._drawn_with_parts is None else self._drawn_share(self._drawn_with_parts, centres).T
         votes = None if self.burst is None else burst_weights(parts, self.burst, self.burst_power)
-        part_match = self._both_ways(pairs - query_side, weights, votes, pairs - train_side)
+
+        def both_ways(similarities: np.ndarray) -> np.ndarray:  # kept to their categories where they are matched so
+            if penalties is None:
+                return self._both_ways(similarities, weights, votes)
+            query_side, train_side = penalties
+            return self._both_ways(similarities - query_side, weights, votes, similarities - train_side)
+
+        part_match = both_ways(pairs)
         if self.layout_weight > 0:
             nearness = np.exp(self._in_place(centres) @ self._train_in_place)
-            in_place = self._both_ways(pairs * nearness - query_side, weights, votes, pairs * nearness - train_side)
-            part_match = (1 - self.layout_weight) * part_match + self.layout_weight * in_place
+            part_match = (1 - self.layout_weight) * part_match + self.layout_weight * both_ways(pairs * nearness)
         matched = similarity.copy()
         matched[self._with_parts] = self.whole_weight * similarity[self._with_parts] + (1 - self.whole_weight) * part_match
         return matched
 
-    def _across_categories(self, graph: SceneGraph) -> tuple[np.ndarray | float, np.ndarray | float]:
+    def _across_categories(self, graph: SceneGraph) -> tuple[np.ndarray, np.ndarray] | None:
         """Two ``(query parts, every training part)`` penalties (parts matched within their category), each
         ``category_penalty`` where both parts name a category and they differ, else 0: for each query part's twin in
         a training graph, where that graph holds a part of the query part's category; for each training part's twin
-        in the query, where the query holds one of the training part's. Both 0 where either side names none."""
+        in the query, where the query holds one of the training part's. None where either side names none."""
         if self._part_categories is None or graph.categories is None:
-            return 0.0, 0.0
+            return None
         query, train = graph.categories[1:, None], self._part_categories[None, :]
         same = (query == train) & (query >= 0)
         across = ~same & (query >= 0) & (train >= 0)

@@ -188,8 +188,6 @@ def _fit_classifier(
             "match_burst": training.match_burst,
             "match_burst_power": training.match_burst_power,
             **({} if training.match_whiten is None else {"match_whiten": training.match_whiten, "match_whiten_parts": training.match_whiten_parts}),
-            # Recorded where it acts: a variant whose parser names no categories matches without it.
-            **({"match_category_penalty": training.match_category_penalty} if training.match_category_penalty and any(g.categories is not None for g in graphs) else {}),
         }
         matcher = GraphMatcher.of(
             graphs,
@@ -208,6 +206,8 @@ def _fit_classifier(
             part_groups if training.match_whiten_parts == "carried" else None,
             training.match_category_penalty,
         )
+        if matcher.category_penalty:  # recorded where it acts: graphs whose parser names no categories match without it
+            rule["match_category_penalty"] = matcher.category_penalty
         atomic_write_bytes(folder / CLASSIFIER_FILES["graph-match"], npz_bytes(matcher.state_dict()))
         return rule
     model, report = train_gcn(graphs, np.array(labels), num_classes, training, groups=groups)
