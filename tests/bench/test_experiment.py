@@ -207,7 +207,7 @@ def test_a_training_setting_added_since_keeps_the_keys_of_earlier_runs(tmp_path,
         return {d.name: json.loads((d / "training.json").read_text())["key"] for d in (out / "variants").iterdir()}
 
     plain = keys(tmp_path / "plain")
-    assert TrainingConfig().unkeyed() == {"match_whiten", "match_whiten_parts", "match_whiten_variants", "match_category_penalty"}
+    assert TrainingConfig().unkeyed() == {"match_whiten", "match_whiten_parts", "match_whiten_variants", "match_category_penalty", "match_category_min_score"}
     whitened = keys(tmp_path / "whitened", match_whiten=1.0)
     assert set(whitened) == set(plain) and all(whitened[k] != plain[k] for k in plain)
     # The keys of a training section that never had the setting: what runs stored before it were keyed by.
@@ -241,6 +241,13 @@ def test_parts_matched_within_their_category_retrain_only_the_variants_whose_par
         assert ("match_category_penalty" in json.loads((folder / "training.json").read_text())) == (name != "PC_SD"), name
         if name != "PC_SD":
             assert set(np.unique(matcher.categories)) == {-1, 0, 1}, name
+    # The score floor is in no key without the penalty, and with it only in the keys the penalty is in.
+    assert run(tmp_path / "named", match_category_min_score=0.5)[0] == named
+    sure, folders = run(tmp_path / "named", match_category_penalty=2.0, match_category_min_score=0.5)
+    assert {name for name in named if sure[name] != within[name]} == {"PC-ST_PSD", "PC-ST_PDS"}
+    for name, folder in folders.items():
+        assert (load_classifier(folder, "graph-match").category_min_score == 0.5) == (name != "PC_SD"), name
+        assert json.loads((folder / "training.json").read_text()).get("match_category_min_score") == (None if name == "PC_SD" else 0.5), name
 
 
 def test_whitening_only_the_synthesized_views_retrains_only_the_variants_that_describe_them(tmp_path, dataset, stand_in_registry):

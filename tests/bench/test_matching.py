@@ -359,6 +359,49 @@ def test_parts_matched_within_their_category_are_the_rule_written_out(layout_wei
         GraphMatcher.of(train, [0, 1, 2, 0, 1], 3, 0.3, category_penalty=-1.0)
 
 
+def with_scores(g: SceneGraph, rng: np.random.Generator) -> SceneGraph:
+    if g.categories is None:
+        return g
+    return replace(g, category_scores=np.concatenate([[np.nan], rng.random(g.num_parts)]).astype(np.float32))
+
+
+def unsure_unnamed(g: SceneGraph, min_score: float) -> SceneGraph:
+    """``g`` with the categories scored below ``min_score`` named -1, written out part by part."""
+    if g.categories is None or g.category_scores is None:
+        return g
+    named = [c if k > 0 and g.category_scores[k] >= min_score else -1 for k, c in enumerate(g.categories.tolist())]
+    return replace(g, categories=np.array(named, np.int32), category_scores=None)
+
+
+def test_only_the_categories_the_parser_is_sure_of_keep_parts_to_their_category():
+    rng = np.random.default_rng(8)
+    train = [with_categories(graph(*rng.random((1 + k, 6))), *rng.integers(0, 3, k)) for k in (3, 4, 2, 5)]
+    train = [with_scores(g, rng) for g in train[:3]] + [train[3]]  # the last: a parser without scores (ground truth)
+    queries = [with_scores(with_categories(graph(*rng.random((1 + k, 6))), *rng.integers(0, 3, k)), rng) for k in (4, 3)]
+    queries.append(with_categories(graph(*rng.random((4, 6))), 0, 1, 2))  # no scores: every category counts
+    labels = [0, 1, 2, 0]
+    matcher = GraphMatcher.of(train, labels, 3, 0.3, 0.5, category_penalty=2.0, category_min_score=0.5)
+    sure = [unsure_unnamed(g, 0.5) for g in train]
+    assert any((a.categories != b.categories).any() for a, b in zip(train, sure, strict=True))
+    for q in queries:
+        expected = [naive_similarity(unsure_unnamed(q, 0.5), t, 0.3, 0.5, category_penalty=2.0) for t in sure]
+        np.testing.assert_allclose(matcher.similarities(q), expected, rtol=1e-5, atol=1e-6)
+    # Every category counts at 0, and the scores change nothing without a penalty.
+    every = GraphMatcher.of(train, labels, 3, 0.3, 0.5, category_penalty=2.0)
+    assert not np.allclose(every.similarities(queries[0]), matcher.similarities(queries[0]))
+    np.testing.assert_allclose(every.similarities(queries[0]), [naive_similarity(queries[0], t, 0.3, 0.5, category_penalty=2.0) for t in train], rtol=1e-5, atol=1e-6)
+    off = GraphMatcher.of(train, labels, 3, 0.3, 0.5, category_min_score=0.5)
+    assert off.category_min_score == 0.0 and "category_min_score" not in off.state_dict()
+    # Saved and read back, the query's categories are judged by the same score; a state from before it: every one counts.
+    again = GraphMatcher.from_state(matcher.state_dict())
+    assert again.category_min_score == 0.5
+    np.testing.assert_array_equal(again.predict(queries), matcher.predict(queries))
+    older = GraphMatcher.from_state({k: v for k, v in every.state_dict().items() if k != "category_min_score"})
+    np.testing.assert_array_equal(older.predict(queries), every.predict(queries))
+    with pytest.raises(InputError, match="category_min_score is a parser's score"):
+        GraphMatcher.of(train, labels, 3, 0.3, category_penalty=2.0, category_min_score=1.5)
+
+
 def test_a_part_of_another_category_is_no_twin_where_the_graph_holds_one_of_its_own():
     # The query's wall has the texture of place 0's floor; place 0's wall looks otherwise, place 1's a
     # little different. Matched whatever the category, the floor passes for the wall and place 0 wins.

@@ -39,6 +39,9 @@ def test_regions_from_labels_renumber_and_box():
     # Label 3 becomes 0 and label 7 becomes 1 (sorted), categories follow them.
     np.testing.assert_array_equal(regions.boxes, [[0, 4, 1, 5], [2, 1, 4, 2]])
     np.testing.assert_array_equal(regions.categories, [30, 70])
+    scored = Regions.from_labels(labels, categories=np.arange(10) * 10, scores=np.arange(10, dtype=np.float32) / 10)
+    np.testing.assert_allclose(scored.scores, [0.3, 0.7])
+    assert regions.scores is None
     np.testing.assert_allclose(regions.centroids(), [[0.5, 4.5], [3.0, 1.5]])
     kept = regions.select(np.array([False, True]))
     assert len(kept) == 1 and kept.labels.max() == 0
@@ -171,6 +174,13 @@ def test_scene_graph_categories_are_one_per_node_with_none_for_the_whole_image()
     for bad in (np.array([-1, 4], np.int32), np.array([2, 4, 5], np.int32), np.array([-1, 4, 5], np.float32)):
         with pytest.raises(InputError, match="SceneGraph.categories"):
             SceneGraph(**ok, categories=bad)
+    named = np.array([-1, 4, -1], np.int32)
+    SceneGraph(**ok, categories=named, category_scores=np.array([np.nan, 0.9, 0.2], np.float32))
+    for bad in (np.array([np.nan, 0.9], np.float32), np.array([0, 1, 0])):
+        with pytest.raises(InputError, match="SceneGraph.category_scores"):
+            SceneGraph(**ok, categories=named, category_scores=bad)
+    with pytest.raises(InputError, match="SceneGraph.category_scores: given without SceneGraph.categories"):
+        SceneGraph(**ok, category_scores=np.array([np.nan, 0.9, 0.2], np.float32))
 
 def test_scene_graph_validates_edges_and_needs_the_whole_image():
     ok = dict(boxes=np.zeros((3, 4), np.float32), features=np.zeros((3, 5), np.float32), weights=np.ones(3, np.float32))

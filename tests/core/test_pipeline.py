@@ -410,6 +410,33 @@ def test_the_graph_keeps_each_parts_category_through_s_and_none_for_a_parser_tha
     assert build_graph(bind("SD"), view, target).categories is None  # no parts
 
 
+class ScoredPairs(PairedStripes):
+    """PairedStripes that names its categories and is surer of each the higher it is: score 0.2 + 0.1 x category."""
+
+    names_categories = True
+
+    def _parse(self, view):
+        regions = super()._parse(view)
+        return dataclasses.replace(regions, scores=(0.2 + 0.1 * regions.categories).astype(np.float32))
+
+
+def test_the_graph_keeps_how_sure_the_parser_is_of_each_category_through_s_and_what_s_drew(view):
+    # Without joining, what S drew at 0.6 m right (columns 230-255) is a part of its own from a fresh parse of the
+    # synthetic view (parse_invented): its score comes with it, as the carried parts' do with them.
+    target = target_right(view, 0.6)
+    for order in ("PSD", "PDS", "SPD", "DSP"):
+        for join in (True, False):
+            bound = dataclasses.replace(joining(order, join), parser=ScoredPairs(StripesConfig(stripes=8)))
+            for graph in (build_graph(bound, view), build_graph(bound, view, target)):
+                assert graph.category_scores is not None and np.isnan(graph.category_scores[0]), (order, join)
+                np.testing.assert_allclose(graph.category_scores[1:], 0.2 + 0.1 * graph.categories[1:], rtol=1e-6, err_msg=f"{order} {join}")
+    invented = build_graph(dataclasses.replace(joining("PSD", False), parser=ScoredPairs(StripesConfig(stripes=8))), view, target)
+    assert invented.boxes[-1][2] == 255 and invented.boxes[-1][0] >= 229  # the part S drew, on its own
+    # A parser that names categories without scores (ground truth) gives none.
+    named = type("NamedPairs", (PairedStripes,), {"names_categories": True})(StripesConfig(stripes=8))
+    assert build_graph(dataclasses.replace(joining("PSD"), parser=named), view, target).category_scores is None
+
+
 def test_a_parser_that_says_it_names_categories_and_gives_none_is_refused(view):
     class Unnamed(StripesParser):
         names_categories = True

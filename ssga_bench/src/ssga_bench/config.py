@@ -52,7 +52,7 @@ class TrainingConfig(Strict):
     """The per-variant GCN place classifier and its training data."""
 
     model_config = ConfigDict(allow_inf_nan=False)
-    added_since: ClassVar[frozenset[str]] = frozenset({"match_whiten", "match_whiten_parts", "match_whiten_variants", "match_category_penalty"})
+    added_since: ClassVar[frozenset[str]] = frozenset({"match_whiten", "match_whiten_parts", "match_whiten_variants", "match_category_penalty", "match_category_min_score"})
 
     classifier: Literal["gcn", "graph-match"] = Field(
         default="gcn",
@@ -147,6 +147,15 @@ class TrainingConfig(Strict):
         "category wherever the other side has one); 0: parts matched whatever their category. Pays where the "
         "categories are right (ground truth), not with cascade-seg's light network. Other variants ignore it and "
         "keep their keys.",
+    )
+    match_category_min_score: float = Field(
+        default=0.0,
+        ge=0.0,
+        le=1.0,
+        description="match_category_penalty: count a part's category only where the parser scored it this high or "
+        "more (Regions.scores: cascade-seg's mean probability of the class over the part, Detic's score); parts below "
+        "are matched whatever their category. 0: every category counts. Parsers that give no scores (ground truth) "
+        "keep every category. Ignored, and out of the key, where the penalty is 0 or the parser names no categories.",
     )
     hidden: int = Field(default=256, gt=0, le=8192, description="Hidden width of the GCN.")
     layers: int = Field(default=2, ge=1, le=32, description="Graph-convolution layers.")

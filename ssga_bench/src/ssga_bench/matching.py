@@ -75,7 +75,9 @@ training graphs. A query graph is compared with every training graph:
   lowered there too, the part's vote would turn into whether the graph holds the category,
   and a pseudo-view's holes leave out categories its place holds (with ground-truth classes
   on the `paper` preset's homes 161-162: +1.1 to +1.4 MRR points so, -3.7 to -6.3 lowered
-  everywhere).
+  everywhere). With ``category_min_score`` a category counts only where the
+  parser is that sure of it (``SceneGraph.category_scores``), so that a segmenter's guesses
+  at a chair or a table do not keep parts from their twins.
 
 The similarity of two graphs is ``whole_weight`` times the first plus the rest times the
 part match (the whole image alone where either graph has no part), and a class scores the
@@ -151,6 +153,16 @@ def within_class_whitening(features: np.ndarray, labels: np.ndarray, shrink: flo
     return x.mean(axis=0).astype(np.float32), (vectors / np.sqrt(eigenvalues.clip(min=0) + floor)).astype(np.float32)
 
 
+def sure_categories(graph: SceneGraph, min_score: float) -> np.ndarray | None:
+    """``(N,)``: each node's category (``SceneGraph.categories``), -1 where the parser's score for it
+    (``SceneGraph.category_scores``) is below ``min_score``; None where the graph names none. A graph whose parser gives
+    no scores (ground truth) keeps every category: nothing says it is unsure."""
+    if graph.categories is None or not min_score or graph.category_scores is None:
+        return graph.categories
+    with np.errstate(invalid="ignore"):  # the whole image's NaN: below any score, and -1 already
+        return np.where(graph.category_scores >= min_score, graph.categories, -1).astype(np.int32)
+
+
 def part_centres(graph: SceneGraph) -> np.ndarray:
     """``(nodes, 2)`` each node's box centre in its image, in widths and heights from the whole image's corner."""
     whole = graph.boxes[0]
@@ -189,6 +201,7 @@ class GraphMatcher:
         part_groups: np.ndarray | None = None,
         categories: np.ndarray | None = None,
         category_penalty: float = 0.0,
+        category_min_score: float = 0.0,
     ) -> None:
         node_ptr, labels = np.asarray(node_ptr, np.int64), np.asarray(labels, np.int64)
         if (
@@ -220,6 +233,8 @@ class GraphMatcher:
             raise InputError(f"graph matcher: expected a category for each of the {len(features)} training nodes, got {np.shape(categories)}")
         if not np.isfinite(category_penalty) or category_penalty < 0:
             raise InputError(f"graph matcher: category_penalty is a cosine to subtract (0 or more), got {category_penalty}")
+        if not 0 <= category_min_score <= 1:
+            raise InputError(f"graph matcher: category_min_score is a parser's score (0 to 1), got {category_min_score}")
         self.features, self.centres = np.asarray(features, np.float32), np.asarray(centres, np.float32)
         self.node_ptr, self.labels = node_ptr, labels
         self.num_classes, self.whole_weight = num_classes, whole_weight
@@ -271,9 +286,11 @@ class GraphMatcher:
         whole_space = self.whiten_parts and self._part_whitening is None and len(self._parts)
         self._part_mean = self._parts.mean(axis=0) if whole_space else None
         self._compared_parts = self._compared(self._parts)
-        # Parts matched within their category: each training node's category (-1: none named); None: not used.
+        # Parts matched within their category: each training node's category (-1: none named, or not sure enough); None:
+        # not used. The query's categories count from category_min_score (the training ones were gated by `of`).
         self.categories = None if categories is None or not category_penalty else np.asarray(categories, np.int32)
         self.category_penalty = float(category_penalty) if self.categories is not None else 0.0
+        self.category_min_score = float(category_min_score) if self.categories is not None else 0.0
         self._part_categories = None if self.categories is None else self.categories[is_part]
 
     @classmethod
@@ -294,6 +311,7 @@ class GraphMatcher:
         whiten_parts: bool = False,
         part_groups: np.ndarray | None = None,
         category_penalty: float = 0.0,
+        category_min_score: float = 0.0,
     ) -> GraphMatcher:
         """The matcher of ``graphs``; ``weigh_drawn``: judge the query's parts where each graph was drawn, each graph's
         weighted mean starting from ``drawn_prior`` parts' worth of its plain mean; ``burst``: count the parts of an
@@ -301,17 +319,19 @@ class GraphMatcher:
         the whole images by their scatter within each class, shrunk by this (``whiten_parts``: the parts too, by
         their scatter within ``part_groups`` where given, one group id per training part, -1 for none);
         ``category_penalty``: lower the cosine of two parts of different categories by this (parts matched within
-        their category), where the graphs carry them."""
+        their category), where the graphs carry them; ``category_min_score``: only between categories the parser gave
+        at least this score (:func:`sure_categories`)."""
         node_ptr = np.concatenate([[0], np.cumsum([g.num_nodes for g in graphs])])
         features = _unit(np.concatenate([g.features for g in graphs])) if graphs else np.zeros((0, 1), np.float32)
         centres = np.concatenate([part_centres(g) for g in graphs]) if graphs else np.zeros((0, 2), np.float32)
         drawn = drawn_grids(graphs) if weigh_drawn else None
         categories = None
         if category_penalty and any(g.categories is not None for g in graphs):
-            categories = np.concatenate([g.categories if g.categories is not None else np.full(g.num_nodes, -1, np.int32) for g in graphs])
+            named = [sure_categories(g, category_min_score) for g in graphs]
+            categories = np.concatenate([c if c is not None else np.full(g.num_nodes, -1, np.int32) for c, g in zip(named, graphs, strict=True)])
         return cls(
             features, centres, node_ptr, np.asarray(labels), num_classes, whole_weight, layout_weight, layout_sigma, standardise, drawn, drawn_prior,
-            burst, burst_power, whiten, whiten_parts, part_groups, categories, category_penalty,
+            burst, burst_power, whiten, whiten_parts, part_groups, categories, category_penalty, category_min_score,
         )
 
     def state_dict(self) -> dict[str, np.ndarray]:
@@ -330,6 +350,7 @@ class GraphMatcher:
             **({} if self.whiten is None else {"whiten": np.array(self.whiten), "whiten_parts": np.array(self.whiten_parts)}),
             **({} if self.part_groups is None else {"part_groups": self.part_groups}),
             **({} if self.categories is None else {"categories": self.categories, "category_penalty": np.array(self.category_penalty)}),
+            **({"category_min_score": np.array(self.category_min_score)} if self.category_min_score else {}),
         }
 
     @classmethod
@@ -355,6 +376,7 @@ class GraphMatcher:
                 state.get("part_groups"),
                 state.get("categories"),
                 float(state.get("category_penalty", 0.0)),
+                float(state.get("category_min_score", 0.0)),
             )
         except KeyError as exc:
             raise InputError(f"graph matcher: saved state without {exc}") from None
@@ -451,12 +473,14 @@ class GraphMatcher:
 
     def _across_categories(self, graph: SceneGraph) -> tuple[np.ndarray, np.ndarray] | None:
         """Two ``(query parts, every training part)`` penalties (parts matched within their category), each
-        ``category_penalty`` where both parts name a category and they differ, else 0: for each query part's twin in
+        ``category_penalty`` where both parts name a category (one the parser is sure of: :func:`sure_categories`) and
+        they differ, else 0: for each query part's twin in
         a training graph, where that graph holds a part of the query part's category; for each training part's twin
         in the query, where the query holds one of the training part's. None where either side names none."""
-        if self._part_categories is None or graph.categories is None:
+        named = None if self._part_categories is None else sure_categories(graph, self.category_min_score)
+        if named is None:
             return None
-        query, train = graph.categories[1:, None], self._part_categories[None, :]
+        query, train = named[1:, None], self._part_categories[None, :]
         same = (query == train) & (query >= 0)
         across = ~same & (query >= 0) & (train >= 0)
         # Only where the other side holds the category: a graph without it is judged on its parts' looks, not on

@@ -139,11 +139,14 @@ def whitens(rv: ResolvedVariant, training: TrainingConfig) -> bool:
 def _unused_match_settings(rv: ResolvedVariant, training: TrainingConfig) -> set[str]:
     """Graph-matching settings left out of the key of a variant they cannot change, so that trying one retrains only
     the variants it changes: the whitening where ``match_whiten_variants`` leaves the variant plain, the category
-    penalty where its parser names no categories (``Parser.names_categories``) or it has none."""
+    penalty where its parser names no categories (``Parser.names_categories``) or it has none, and its score floor
+    where there is no penalty."""
     unused = set(WHITENING) if training.match_whiten is not None and not whitens(rv, training) else set()
     parser = rv.stages.get("parser")
     if parser is None or not parser.cls.names_categories:
         unused.add("match_category_penalty")
+    if "match_category_penalty" in unused or not training.match_category_penalty:
+        unused.add("match_category_min_score")
     return unused
 
 
@@ -205,9 +208,12 @@ def _fit_classifier(
             bool(training.match_whiten_parts),
             part_groups if training.match_whiten_parts == "carried" else None,
             training.match_category_penalty,
+            training.match_category_min_score,
         )
         if matcher.category_penalty:  # recorded where it acts: graphs whose parser names no categories match without it
             rule["match_category_penalty"] = matcher.category_penalty
+            if matcher.category_min_score:
+                rule["match_category_min_score"] = matcher.category_min_score
         atomic_write_bytes(folder / CLASSIFIER_FILES["graph-match"], npz_bytes(matcher.state_dict()))
         return rule
     model, report = train_gcn(graphs, np.array(labels), num_classes, training, groups=groups)

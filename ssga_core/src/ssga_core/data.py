@@ -198,7 +198,8 @@ class Regions:
         categories: optional ``(K,)`` int32 semantic category of each region.
         names: optional class name of each region (``K`` strings), for the people who
             look at a scene graph: a segmenter's or detector's vocabulary entry.
-        scores: optional ``(K,)`` float32 confidence of each region (a detector's score).
+        scores: optional ``(K,)`` float32 confidence of each region (a detector's score, a
+            segmenter's mean probability of the region's class).
 
     The optional per-region attributes travel with their regions wherever regions are
     selected, moved by a synthesizer or joined (``PER_REGION`` lists them, so each of
@@ -229,10 +230,10 @@ class Regions:
             _check_array("Regions.scores", self.scores, (k,), (np.floating,))
 
     @classmethod
-    def from_labels(cls, labels: np.ndarray, categories: np.ndarray | None = None) -> Regions:
+    def from_labels(cls, labels: np.ndarray, categories: np.ndarray | None = None, scores: np.ndarray | None = None) -> Regions:
         """Regions from a label map, renumbering labels to ``0..K-1`` and dropping empty ones.
 
-        ``categories``, if given, is indexed by the *original* label values.
+        ``categories`` and ``scores``, if given, are indexed by the *original* label values.
         """
         labels = np.asarray(labels)
         inside = labels >= 0
@@ -243,7 +244,8 @@ class Regions:
         lut[present] = np.arange(len(present), dtype=np.int32)
         dense = np.where(labels >= 0, lut[np.clip(labels, 0, None)], -1).astype(np.int32)
         cats = None if categories is None else np.asarray(categories, dtype=np.int32)[present]
-        return cls(labels=dense, boxes=boxes_from_labels(dense, len(present)), categories=cats)
+        sure = None if scores is None else np.asarray(scores, dtype=np.float32)[present]
+        return cls(labels=dense, boxes=boxes_from_labels(dense, len(present)), categories=cats, scores=sure)
 
     def __len__(self) -> int:
         return len(self.boxes)
@@ -423,6 +425,10 @@ class SceneGraph:
         categories: ``(N,)`` int32: each node's semantic category as its parser named it
             (``Regions.categories``), -1 for the whole image; None where the parser names none
             (superpixels). A matcher can then pair a part only with parts of its own category.
+        category_scores: ``(N,)`` float32: how sure the parser is of each node's category
+            (``Regions.scores``: a segmenter's mean probability of the class over the part, a
+            detector's score), NaN for the whole image; None where it gives none (ground truth).
+            A matcher can then trust only the categories the parser is sure of.
     """
 
     WHOLE_IMAGE: ClassVar[int] = 0
@@ -434,6 +440,7 @@ class SceneGraph:
     drawn: np.ndarray | None = None
     part_origins: np.ndarray | None = None
     categories: np.ndarray | None = None
+    category_scores: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         n = len(self.boxes) if isinstance(self.boxes, np.ndarray) else -1
@@ -460,6 +467,10 @@ class SceneGraph:
             _check_array("SceneGraph.categories", self.categories, (n,), (np.integer,))
             if self.categories[self.WHOLE_IMAGE] != -1:
                 raise InputError("SceneGraph.categories: expected -1 for the whole image, which has no category")
+        if self.category_scores is not None:
+            if self.categories is None:
+                raise InputError("SceneGraph.category_scores: given without SceneGraph.categories, whose scores they are")
+            _check_array("SceneGraph.category_scores", self.category_scores, (n,), (np.floating,))
 
     @property
     def num_nodes(self) -> int:

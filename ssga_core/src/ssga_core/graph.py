@@ -54,18 +54,22 @@ def assemble(
     drawn: np.ndarray | None = None,
     part_origins: np.ndarray | None = None,
     part_categories: np.ndarray | None = None,
+    part_category_scores: np.ndarray | None = None,
 ) -> SceneGraph:
     """The scene graph of a whole-image node (features row 0) and parts (rows 1..K); ``drawn``:
     where a synthetic view was drawn (:meth:`~ssga_core.View.drawn_blocks`); ``part_origins``:
     ``(K, 2)`` each part's (source view, region), -1 for none (``SceneGraph.part_origins``);
-    ``part_categories``: ``(K,)`` each part's category (``Regions.categories``)."""
+    ``part_categories``: ``(K,)`` each part's category (``Regions.categories``) and ``part_category_scores`` how sure
+    the parser is of it (``Regions.scores``; kept only with the categories)."""
     boxes = np.concatenate([whole_image_box(camera)[None], np.asarray(part_boxes, dtype=np.float32).reshape(-1, 4)])
     origins = None
     if part_origins is not None and np.any(np.asarray(part_origins) >= 0):
         origins = np.concatenate([np.full((1, 2), -1, np.int32), np.asarray(part_origins, np.int32).reshape(-1, 2)])
-    categories = None
+    categories = category_scores = None
     if part_categories is not None:
         categories = np.concatenate([[-1], np.asarray(part_categories).reshape(-1)]).astype(np.int32)
+        if part_category_scores is not None:
+            category_scores = np.concatenate([[np.nan], np.asarray(part_category_scores).reshape(-1)]).astype(np.float32)
     return SceneGraph(
         boxes=boxes,
         features=np.asarray(features, dtype=np.float32),
@@ -74,4 +78,5 @@ def assemble(
         drawn=drawn,
         part_origins=origins,
         categories=categories,
+        category_scores=category_scores,
     )

@@ -471,7 +471,7 @@ class _State:
         mostly = (inside > 0) & (2 * inside >= area)
         wanted = np.append(mostly | (join & (inside > 0)), False)
         taken = invented & wanted[np.where(labelled, fresh.labels, -1)]
-        added = Regions.from_labels(np.where(taken, fresh.labels, -1), fresh.categories)
+        added = Regions.from_labels(np.where(taken, fresh.labels, -1), fresh.categories, fresh.scores)
         present = np.flatnonzero(np.bincount(fresh.labels[taken], minlength=len(fresh)))  # from_labels' order
         labels = np.where(added.labels >= 0, added.labels + len(carried), carried.labels).astype(np.int32)
         self.origins = np.concatenate([self.part_origins(), np.full((len(added), 2), -1, np.int32)])
@@ -571,7 +571,7 @@ class _State:
         boxes = regions.boxes if regions is not None else np.zeros((0, 4), np.float32)
         drawn = self.view.drawn_blocks(DRAWN_BLOCKS) if self.view.synthetic else None
         categories = regions.categories if regions is not None else None
-        return assemble(camera, boxes, features, drawn, origins, categories)
+        return assemble(camera, boxes, features, drawn, origins, categories, regions.scores if regions is not None else None)
 
 
 def carry_regions(regions: Regions, syn: Synthesis) -> tuple[np.ndarray, Regions]:
