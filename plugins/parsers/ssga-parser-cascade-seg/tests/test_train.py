@@ -87,3 +87,20 @@ def test_a_tiny_run_resumes_after_an_interruption_and_exports_loadable_weights(t
     assert len(regions) > 0 and set(regions.names) <= set(PROCEDURAL)
     with pytest.raises(InputError, match="holds a run of another config"):
         train.Run(train.TrainConfig(), tmp_path / "run")
+
+
+def test_piece_reliability_counts_a_piece_right_by_its_pixels_majority_and_keeps_it_by_its_score():
+    from ssga_parser_cascade_seg.evaluate import piece_reliability
+
+    # One 8 x 8 view: the left half is truly class 0, the right half class 1 with a column of class 2 in it.
+    truth = np.zeros((1, 8, 8), np.int8)
+    truth[0, :, 4:] = 1
+    truth[0, :, 7] = 2
+    # The network: the left half class 0 at 0.9 (right), the right half class 2 at 0.4 (its majority is 1: wrong).
+    probs = np.full((3, 8, 8), 0.05, np.float32)
+    probs[0, :, :4], probs[2, :, 4:] = 0.9, 0.4
+    data = Labelled(np.zeros((1, 8, 8, 3), np.uint8), truth, np.array([0]))
+    figures = piece_reliability(lambda rgb: probs, data, ("a", "b", "c"), [0.5, 0.3], min_px=1)
+    assert figures["all"] == {"pieces": 2, "right": 0.5, "at 0.5": {"kept": 0.5, "right": 1.0}, "at 0.3": {"kept": 1.0, "right": 0.5}}
+    assert figures["classes"]["a"] == {"pieces": 1, "right": 1.0, "at 0.5": {"kept": 1.0, "right": 1.0}, "at 0.3": {"kept": 1.0, "right": 1.0}}
+    assert figures["classes"]["c"]["at 0.5"] == {"kept": 0.0, "right": None} and "b" not in figures["classes"]
