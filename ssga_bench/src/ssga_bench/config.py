@@ -52,7 +52,9 @@ class TrainingConfig(Strict):
     """The per-variant GCN place classifier and its training data."""
 
     model_config = ConfigDict(allow_inf_nan=False)
-    added_since: ClassVar[frozenset[str]] = frozenset({"match_whiten", "match_whiten_parts", "match_whiten_variants", "match_category_penalty", "match_category_min_score"})
+    added_since: ClassVar[frozenset[str]] = frozenset(
+        {"match_whiten", "match_whiten_parts", "match_whiten_variants", "match_category_penalty", "match_category_min_score"}
+    )
 
     classifier: Literal["gcn", "graph-match"] = Field(
         default="gcn",

@@ -327,8 +327,8 @@ class GraphMatcher:
         drawn = drawn_grids(graphs) if weigh_drawn else None
         categories = None
         if category_penalty and any(g.categories is not None for g in graphs):
-            named = [sure_categories(g, category_min_score) for g in graphs]
-            categories = np.concatenate([c if c is not None else np.full(g.num_nodes, -1, np.int32) for c, g in zip(named, graphs, strict=True)])
+            named = [(sure_categories(g, category_min_score), g.num_nodes) for g in graphs]
+            categories = np.concatenate([np.full(n, -1, np.int32) if c is None else c for c, n in named])
         return cls(
             features, centres, node_ptr, np.asarray(labels), num_classes, whole_weight, layout_weight, layout_sigma, standardise, drawn, drawn_prior,
             burst, burst_power, whiten, whiten_parts, part_groups, categories, category_penalty, category_min_score,
@@ -474,9 +474,9 @@ class GraphMatcher:
     def _across_categories(self, graph: SceneGraph) -> tuple[np.ndarray, np.ndarray] | None:
         """Two ``(query parts, every training part)`` penalties (parts matched within their category), each
         ``category_penalty`` where both parts name a category (one the parser is sure of: :func:`sure_categories`) and
-        they differ, else 0: for each query part's twin in
-        a training graph, where that graph holds a part of the query part's category; for each training part's twin
-        in the query, where the query holds one of the training part's. None where either side names none."""
+        they differ, else 0: for each query part's twin in a training graph, where that graph holds a part of the query
+        part's category; for each training part's twin in the query, where the query holds one of the training part's.
+        None where either side names none."""
         named = None if self._part_categories is None else sure_categories(graph, self.category_min_score)
         if named is None:
             return None

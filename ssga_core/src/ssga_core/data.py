@@ -244,8 +244,8 @@ class Regions:
         lut[present] = np.arange(len(present), dtype=np.int32)
         dense = np.where(labels >= 0, lut[np.clip(labels, 0, None)], -1).astype(np.int32)
         cats = None if categories is None else np.asarray(categories, dtype=np.int32)[present]
-        sure = None if scores is None else np.asarray(scores, dtype=np.float32)[present]
-        return cls(labels=dense, boxes=boxes_from_labels(dense, len(present)), categories=cats, scores=sure)
+        confidence = None if scores is None else np.asarray(scores, dtype=np.float32)[present]
+        return cls(labels=dense, boxes=boxes_from_labels(dense, len(present)), categories=cats, scores=confidence)
 
     def __len__(self) -> int:
         return len(self.boxes)
