@@ -392,6 +392,7 @@ def test_only_the_categories_the_parser_is_sure_of_keep_parts_to_their_category(
     np.testing.assert_allclose(every.similarities(queries[0]), [naive_similarity(queries[0], t, 0.3, 0.5, category_penalty=2.0) for t in train], rtol=1e-5, atol=1e-6)
     off = GraphMatcher.of(train, labels, 3, 0.3, 0.5, category_min_score=0.5)
     assert off.category_min_score == 0.0 and "category_min_score" not in off.state_dict()
+    np.testing.assert_array_equal(off.predict(queries), GraphMatcher.of(train, labels, 3, 0.3, 0.5).predict(queries))
     # Saved and read back, the query's categories are judged by the same score; a state from before it: every one counts.
     again = GraphMatcher.from_state(matcher.state_dict())
     assert again.category_min_score == 0.5
