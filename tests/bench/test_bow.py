@@ -7,6 +7,7 @@ import pytest
 from pydantic import ValidationError
 
 from ssga_core import InputError, LocalFeatures, View
+from ssga_bench.seeds import stream
 from ssga_bench.colour import COLOUR_BINS, COLOUR_DIM, colour_histograms
 from ssga_bench.bow import (
     BagOfWords,
@@ -75,7 +76,7 @@ def test_nbnn_with_every_member_as_prototype_is_nearest_neighbour_to_each_word()
     bow = BagOfWords(BoWConfig(k=5, prototypes=1000)).fit(x)
     query = np.random.default_rng(1).normal(0, 20, (30, 8)).astype(np.float32)
     dist = ((query[:, None, :] - x[None, :, :]) ** 2).sum(-1)
-    word_of = kmeans(x, 5, rng=0)[1]  # the same fit: same seed, same data
+    word_of = kmeans(x, 5, rng=stream(0, "fitting"))[1]  # the same fit: the same stream, the same data
     expected = np.stack([dist[:, word_of == w].min(1) for w in range(5)], axis=1)
     np.testing.assert_allclose(bow.distances(query), expected, rtol=1e-4, atol=1e-2)
 

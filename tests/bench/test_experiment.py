@@ -14,6 +14,7 @@ import pytest
 from ssga_bench.config import TrainingConfig, validate_experiment
 from ssga_bench.dataset_build import build_dataset
 from ssga_bench.experiment import Timings, Views, run_experiment, training_plan
+from ssga_bench.training_plan import class_viewpoints, training_cells, training_protocol
 from ssga_bench.protocol import Protocol
 from ssga_bench.protocol import ProtocolConfig
 from ssga_bench.protocol_plan import level_of
@@ -57,7 +58,9 @@ def test_canonical_poses_are_each_class_viewpoint_and_jittered_copies(dataset):
     plan = training_plan(dataset, config, Views(dataset, Timings()))
     reals = {s.place: s for s in dataset.split("train")}
     assert [c.real_class for c in plan.cells] == list(reals)
-    viewpoint = {s.place: s.pose for s in dataset.split("train") + dataset.split("target")}
+    cells = training_cells(dataset, Views(dataset, Timings()))
+    viewpoint = class_viewpoints(training_protocol(dataset, cells), dataset, cells)
+    assert all(viewpoint[s.place] == s.pose for s in dataset.split("train"))
     by_place = {}
     for p, group in zip(plan.pseudo, plan.pose_groups):
         by_place.setdefault(p.place, []).append((p, group))
@@ -78,7 +81,7 @@ def test_canonical_poses_are_each_class_viewpoint_and_jittered_copies(dataset):
 def test_class_poses_belong_to_their_class_and_take_every_landmark_that_sees_them(dataset):
     config = TrainingConfig(poses="class", sources="seen", synthetic_per_class=2, max_sources=3, min_source_coverage=0.0)
     plan = training_plan(dataset, config, Views(dataset, Timings()))
-    protocol = Protocol(dataset.floor_plan, dataset.camera, dataset.plan.config)
+    protocol = seen_protocol(dataset)
     assert len(set(plan.pose_groups)) == len(plan.pseudo)  # every pose is its own draw
     for p in plan.pseudo:
         cell = protocol.assign(np.array([[p.pose.x, p.pose.y]]), np.array([p.pose.yaw]))[0]
@@ -88,11 +91,16 @@ def test_class_poses_belong_to_their_class_and_take_every_landmark_that_sees_the
     assert any(len(p.sources) > 1 for p in plan.pseudo)
 
 
+def seen_protocol(dataset):
+    """The protocol on the floor the real views saw: what the training plan knows."""
+    return training_protocol(dataset, training_cells(dataset, Views(dataset, Timings())))
+
+
 def _pose_levels(dataset, plan):
-    """Each class's pseudo-view levels, measured as its test views' are."""
-    protocol = Protocol(dataset.floor_plan, dataset.camera, dataset.plan.config)
-    targets = {s.place: s.pose for s in dataset.split("train") + dataset.split("target")}
-    polygons = protocol.level_reference_polygons(targets, [s.place for s in dataset.split("train")])
+    """Each class's pseudo-view levels, measured as the training plan measures them (on the seen floor)."""
+    protocol = seen_protocol(dataset)
+    cells = training_cells(dataset, Views(dataset, Timings()))
+    polygons = protocol.level_reference_polygons(class_viewpoints(protocol, dataset, cells), [s.place for s in dataset.split("train")])
     levels: dict[int, list[int]] = {}
     for p in plan.pseudo:
         vo = view_overlap(protocol.polygon(p.pose), polygons[p.place])
@@ -105,8 +113,10 @@ def test_poses_kept_for_the_rare_levels_are_at_them_and_the_classes_keep_their_c
     plain = _pose_levels(dataset, training_plan(dataset, TrainingConfig(poses="class", synthetic_per_class=9), views))
     kept_plan = training_plan(dataset, TrainingConfig(poses="class", synthetic_per_class=9, synthetic_per_level=3), views)
     kept = _pose_levels(dataset, kept_plan)
-    assert sorted(kept) == sorted(plain) and all(len(kept[place]) == len(plain[place]) == 9 for place in kept)
-    protocol = Protocol(dataset.floor_plan, dataset.camera, dataset.plan.config)
+    # A class whose poses the real views never saw gets fewer; the kept slots take none from any class.
+    assert sorted(kept) == sorted(plain) and all(len(kept[place]) == len(plain[place]) for place in kept)
+    assert sum(len(v) == 9 for v in kept.values()) >= len(kept) // 2
+    protocol = seen_protocol(dataset)
     for p in kept_plan.pseudo:  # still poses of their own class
         cell = protocol.assign(np.array([[p.pose.x, p.pose.y]]), np.array([p.pose.yaw]))[0]
         assert dataset.plan.cells.index(cell) == p.place // 12 and protocol.orientation_of(p.pose.yaw) == p.place % 12
@@ -127,6 +137,37 @@ def test_a_level_no_pose_reaches_leaves_its_slots_to_any_pose(dataset):
     places = range(len(dataset.plan.cells) * 12)
     poses = protocol.class_poses(dataset.plan.cells, 3, 1.2, np.random.default_rng(0), per_level=1, level_polygons={p: speck for p in places})
     assert sorted(poses) == list(places) and all(len(p) == 3 for p in poses.values())
+
+
+def test_training_reads_only_what_the_robot_has(dataset, monkeypatch):
+    """The training plan reads no floor plan, no synthesis target and no view but the real ones."""
+    from ssga_bench.dataset import Dataset
+
+    def no_floor_plan(self):
+        raise AssertionError("training read the workspace's floor plan")
+
+    view, split = Dataset.view, Dataset.split
+    monkeypatch.setattr(Dataset, "floor_plan", property(no_floor_plan))
+    monkeypatch.setattr(Dataset, "view", lambda self, s, **kw: view(self, s, **kw) if s.split == "train" else pytest.fail(f"training read {s.id}"))
+    monkeypatch.setattr(Dataset, "split", lambda self, name: split(self, name) if name == "train" else pytest.fail(f"training read the {name} split"))
+    for poses in ("class", "canonical"):
+        plan = training_plan(dataset, TrainingConfig(poses=poses, synthetic_per_class=3, synthetic_per_level=1), Views(dataset, Timings()))
+        assert plan.pseudo and {p.place for p in plan.pseudo} <= set(range(dataset.num_classes))
+
+
+def test_a_run_records_its_pseudo_views_and_none_stands_on_a_test_view(tmp_path, dataset, stand_in_registry):
+    run_experiment(experiment(stand_in_registry, variants=("SD",)), dataset, tmp_path)
+    records = [json.loads(line) for line in (tmp_path / "pseudo_views.jsonl").read_text().splitlines()]
+    reals = {s.id for s in dataset.split("train")}
+    assert records and all(set(r) == {"class", "pose", "sources"} and set(r["pose"]) == {"x", "y", "yaw"} for r in records)
+    assert all(r["sources"] and set(r["sources"]) <= reals for r in records)
+    tests = [json.loads(line) for line in (tmp_path / "predictions.jsonl").read_text().splitlines()]
+    for r in records:
+        for t in tests:
+            if t["truth"] == r["class"]:
+                apart = math.hypot(r["pose"]["x"] - t["pose"]["x"], r["pose"]["y"] - t["pose"]["y"])
+                turn = abs(math.remainder(r["pose"]["yaw"] - t["pose"]["yaw"], 2 * math.pi))
+                assert apart > 0.01 or turn > math.radians(0.5)
 
 
 def test_runs_fuses_reports_and_resumes(tmp_path, dataset, stand_in_registry, monkeypatch):

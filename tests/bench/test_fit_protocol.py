@@ -13,15 +13,15 @@ from ssga_core import InputError
 
 TOO_BIG_CELLS = ProtocolConfig(cells=2, cell_size=30.0, test_per_class=2, seed=4)
 """30 m cells in a 10 m room: none is seen from every heading."""
-TOO_SMALL_A_RADIUS = ProtocolConfig(cells=2, test_per_class=3, test_radius=0.01, max_candidates=5, seed=4)
-"""Test cameras within 1 cm of a centroid, five candidates per view: some classes get none."""
+TOO_SMALL_A_RADIUS = ProtocolConfig(cells=2, test_per_class=3, test_radius=0.01, max_candidates=8, seed=4)
+"""Test cameras within 1 cm of a centroid, eight candidates per view: some classes get none."""
 
 
 def build(tmp_path, name, protocol, fit):
     return build_dataset(WallWorkspaceSource().open(), tmp_path / name, source={"name": "test-wall"}, protocol=protocol, fit=fit)
 
 
-@pytest.mark.parametrize(("protocol", "changed", "value"), [(TOO_BIG_CELLS, "cell_size", 3.0), (TOO_SMALL_A_RADIUS, "test_radius", 1.5)])
+@pytest.mark.parametrize(("protocol", "changed", "value"), [(TOO_BIG_CELLS, "cell_size", 3.0), (TOO_SMALL_A_RADIUS, "test_radius", 1.0)])
 def test_a_protocol_that_does_not_fit_is_fitted_said_and_recorded(tmp_path, capsys, monkeypatch, protocol, changed, value):
     with pytest.raises(InputError) as fixed:
         build(tmp_path, "fixed", protocol, fit=False)

@@ -382,7 +382,7 @@ def test_a_run_with_such_labels_writes_inside_its_variants_folder(tmp_path, data
     assert len(folders) == 3 and all((p / "scores.npy").exists() for p in folders)
     assert {json.loads((p / "training.json").read_text())["label"] for p in folders} == {"x y", "x/y", ".."}
     assert [p.name for p in tmp_path.iterdir()] == ["run"]
-    assert {p.name for p in out.iterdir()} == {"run.json", "cache", "variants", "oracle", "report.md", "results.csv", "results.png", "timings.json", "predictions.jsonl", "queries", "index.html", "workspace.png", "scene-graphs"}
+    assert {p.name for p in out.iterdir()} == {"run.json", "cache", "variants", "oracle", "report.md", "results.csv", "results.png", "timings.json", "predictions.jsonl", "pseudo_views.jsonl", "queries", "index.html", "workspace.png", "scene-graphs"}
 
 
 # --- 9. Output files get the permissions the umask gives ---

@@ -15,6 +15,9 @@ _EXPORTS = {
     "Workspace": "ssga_bench.workspace",
     "CapturedWorkspace": "ssga_bench.workspace",
     "grid_polygons": "ssga_bench.workspace",
+    # a floor plan of what views saw (their poses and depth)
+    "FloorEvidence": "ssga_bench.seen_floor",
+    "floor_plan_from_captures": "ssga_bench.seen_floor",
     # levelling a scan or a sequence: up to +z, the floor at z = 0
     "rotation_to_z": "ssga_bench.levelling",
     "lowest_level": "ssga_bench.levelling",

@@ -69,6 +69,7 @@ from pydantic import Field, model_validator
 
 from ssga_bench.colour import COLOUR_DIM, colour_histograms
 from ssga_bench.kmeans import BLOCK, as_descriptor_matrix, kmeans
+from ssga_bench.seeds import stream
 from ssga_core.data import LocalFeatures, View
 from ssga_core.errors import InputError, SsgaError
 from ssga_core.ranking import ranks
@@ -219,7 +220,7 @@ class BagOfWords:
                 f"bag of words: k = {cfg.k} words need at least {cfg.k} training descriptors, got {len(x)}; "
                 "lower bow.k or fit on more views"
             )
-        rng = np.random.default_rng(cfg.seed)
+        rng = stream(cfg.seed, "fitting")
         if len(x) > cfg.max_train:
             x = x[np.sort(rng.choice(len(x), cfg.max_train, replace=False))]
         centroids, labels = kmeans(x, cfg.k, iterations=cfg.iterations, init=cfg.init, rng=rng)
@@ -458,7 +459,7 @@ class BoWDescriptor(LocalDescriptor):
             return np.zeros((0, 0), dtype=np.float32)
         cfg = self.bow.config
         per_view = -(-cfg.max_train // len(views))
-        rng = np.random.default_rng(cfg.seed)
+        rng = stream(cfg.seed, "fitting")
         chunks = []
         for view in views:
             d = super().extract(view).descriptors  # the descriptor's own columns: no colour to compute and drop

@@ -31,6 +31,7 @@ from ssga_bench.io import (
 )
 from ssga_bench.execution import Executor
 from ssga_bench.protocol import Plan, Protocol, ProtocolConfig, Sample, capture_height, fit_protocol
+from ssga_bench.seeds import DRAWS
 from ssga_bench.workspace import AnyWorkspace, Workspace
 
 _SAMPLE_ID = re.compile(r"[A-Za-z0-9][A-Za-z0-9_-]*")
@@ -41,6 +42,7 @@ def _header(workspace: AnyWorkspace, source: dict[str, Any], protocol: ProtocolC
     cam = workspace.camera
     return {
         "format": FORMAT,
+        "draws": DRAWS,
         "workspace": workspace.name,
         "source": source,
         "protocol": protocol_record(protocol),
@@ -75,7 +77,7 @@ def build_workspace(
     record = {"name": source.name, **source.config.model_dump(mode="json")}
     fit = protocol.fit == "auto" or (protocol.fit is None and source.cls.fits_protocol)
     if out is None:
-        digest = hashlib.blake2b(json.dumps([record, protocol_record(protocol)], sort_keys=True).encode(), digest_size=4)
+        digest = hashlib.blake2b(json.dumps([record, protocol_record(protocol), DRAWS], sort_keys=True).encode(), digest_size=4)
         out = Path("runs") / "workspaces" / f"{workspace.name}-{digest.hexdigest()}"
     return build_dataset(
         workspace,

@@ -56,7 +56,7 @@ from ssga_bench.evaluation import Report
 from ssga_bench.execution import Executor, open_executor
 from ssga_bench.fusion import fuse_variants
 from ssga_bench.heading import with_heading_prior
-from ssga_bench.io import atomic_write_bytes, load_npz, npy_bytes, npz_bytes, warn, write_json
+from ssga_bench.io import atomic_write_bytes, load_npz, npy_bytes, npz_bytes, warn, write_json, write_jsonl
 from ssga_bench.ownership import RUN, claim_folder
 from ssga_bench.oracle import TrueRender
 from ssga_bench.page import write_run_page
@@ -64,7 +64,7 @@ from ssga_bench.run_report import write_report
 from ssga_bench.scoring import SCORE_CHUNK, ChunkScores, ScoreJob, dataset_identity, score_chunk
 from ssga_bench.tasks import chunks
 from ssga_bench.timings import Timings
-from ssga_bench.training_plan import TrainingPlan, Views, training_plan
+from ssga_bench.training_plan import PSEUDO_VIEWS, TrainingPlan, Views, pseudo_view_records, training_plan
 from ssga_bench.variant_training import (
     PSEUDO_CHUNK,
     SCORE_FILES,
@@ -282,6 +282,7 @@ def run_experiment(
     views = Views(dataset, timings)
     with timings.phase("training plan"), timings.wall_phase("training plan"):
         plan = training_plan(dataset, config.training, views)
+        write_jsonl(out / PSEUDO_VIEWS, pseudo_view_records(plan, dataset))
     with timings.wall_phase("real views (parse, describe)"):
         describe_real_views(experiment.variants, dataset, cache, executor, config.execution.batch, timings, progress)
 

@@ -17,11 +17,13 @@ import shapely
 
 from ssga_core.errors import InputError
 from ssga_core.data import Regions, View
+from ssga_core.geometry import Pose
 from ssga_bench.dataset import Dataset
 from ssga_bench.io import write_png
 from ssga_bench.protocol import Sample
 
 LEVEL_COLOURS = {1: (46, 160, 67), 2: (230, 150, 20), 3: (210, 50, 50)}  # RGB: green, orange, red
+PSEUDO_COLOUR = (140, 60, 200)  # RGB: purple
 
 
 def class_colour(place: int) -> tuple[int, int, int]:
@@ -31,10 +33,12 @@ def class_colour(place: int) -> tuple[int, int, int]:
     return int(r * 255), int(g * 255), int(b * 255)
 
 
-def birdseye(dataset: Dataset, colour_by: str = "class", px_per_m: float = 60.0, frustum_m: float = 0.45) -> np.ndarray:
+def birdseye(
+    dataset: Dataset, colour_by: str = "class", px_per_m: float = 60.0, frustum_m: float = 0.45, pseudo: Sequence[Pose] = ()
+) -> np.ndarray:
     """RGB image of the floor plan: free floor, occluders, the cell grid (selected cells outlined and
     numbered), test cameras with their frusta coloured by class or level, training views (filled
-    triangles) and synthesis targets (outlined)."""
+    triangles), synthesis targets (outlined) and ``pseudo`` views (purple dots, a tick for the heading)."""
     plan = dataset.floor_plan
     xmin, ymin, xmax, ymax = plan.bounds
     margin = 0.5
@@ -74,6 +78,10 @@ def birdseye(dataset: Dataset, colour_by: str = "class", px_per_m: float = 60.0,
         ends = [p + scale * frustum_m * np.array([math.cos(s.pose.yaw + a), math.sin(s.pose.yaw + a)]) for a in (-hfov / 2, hfov / 2)]
         return px([p, *ends])
 
+    for pose in pseudo:
+        a, b = px([[pose.x, pose.y], [pose.x + 0.15 * math.cos(pose.yaw), pose.y + 0.15 * math.sin(pose.yaw)]])
+        cv2.line(img, tuple(a), tuple(b), PSEUDO_COLOUR, 1, cv2.LINE_AA)
+        cv2.circle(img, tuple(a), 2, PSEUDO_COLOUR, -1, cv2.LINE_AA)
     for s in dataset.split("test"):
         colour = LEVEL_COLOURS[s.level] if colour_by == "level" else class_colour(s.place)
         cv2.polylines(img, [frustum(s, 0.6)], True, colour, 1, cv2.LINE_AA)

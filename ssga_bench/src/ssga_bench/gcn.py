@@ -63,6 +63,7 @@ from torch.nn import functional as F
 
 from ssga_bench.io import atomic_write_bytes
 from ssga_bench.learned import torch_threads
+from ssga_bench.seeds import stream, torch_seed
 
 if TYPE_CHECKING:  # the model takes any config with these fields; it does not depend on the config module
     from ssga_bench.config import TrainingConfig
@@ -409,8 +410,8 @@ def train_gcn(
             f"train_gcn: {len(graphs)} graphs, {len(labels)} labels, {len(groups) if groups is not None else '-'} groups"
         )
     with torch_threads(config.threads):
-        torch.manual_seed(config.seed)
-        val = validation_split(labels, config.validation_fraction, np.random.default_rng(config.seed), groups)
+        torch.manual_seed(torch_seed(config.seed, "classifier"))
+        val = validation_split(labels, config.validation_fraction, stream(config.seed, "classifier"), groups)
         train = np.setdiff1d(np.arange(len(graphs)), val)
         packed = PackedGraphs.of(graphs)
         train_set, val_set = packed.take(train), (packed.take(val) if len(val) else None)

@@ -133,7 +133,7 @@ def write_run_page(out: Path) -> Path:
     queries = sorted(p.relative_to(out).as_posix() for p in (out / "queries").glob("*.png")) if (out / "queries").is_dir() else []
     body.append("<h2>Sample queries, right and wrong</h2>" + _figures(queries, lambda p: Path(p).stem.split("-", 1)[-1]))
     if (out / "workspace.png").is_file():
-        body.append('<h2>The workspace</h2><p>Cells, training views and test cameras by level.</p><img src="workspace.png" alt="workspace map">')
+        body.append('<h2>The workspace</h2><p>Cells, training views, test cameras by level and the pseudo-views training synthesized (purple).</p><img src="workspace.png" alt="workspace map">')
     graphs = sorted(p.relative_to(out).as_posix() for p in (out / "scene-graphs").glob("*.png")) if (out / "scene-graphs").is_dir() else []
     if graphs:
         body.append("<h2>Scene graphs of a few test views</h2>" + _figures(graphs))

@@ -54,6 +54,7 @@ from ssga_bench.protocol_fit import Fit, Suggestion, fit_protocol, suggest, sugg
 from ssga_bench.protocol_geometry import VIEWPOINT_STEPS
 from ssga_bench.protocol_plan import Grid, Plan, Sample, Split, capture_height, level_of
 from ssga_bench.protocol_sampling import ProtocolSampling
+from ssga_bench.seeds import stream
 
 __all__ = [
     "FULL_REACH",
@@ -96,15 +97,14 @@ class Protocol(ProtocolSampling):
                 views cannot be placed.
         """
         c = self.config
-        rng = np.random.default_rng(c.seed)
+        rng = stream(c.seed, "cells")
         chosen = self._choose_cells(self.free_cells(rng), height, workspace)
         reals = [int(rng.integers(c.orientations)) for _ in chosen]
         samples, training, real_place = self._training_samples(chosen, reals, {})
         cells = [cell for cell, _ in chosen]
-        samples.extend(self._sample_tests(cells, training, real_place, height, rng, progress))
+        samples.extend(self._sample_tests(cells, training, real_place, height, stream(c.seed, "test"), progress))
         if c.val_per_class:
-            # Its own random stream: asking for validation views leaves the test draw as it was.
-            val_rng = np.random.default_rng([c.seed, 1])
+            val_rng = stream(c.seed, "val")
             samples.extend(self._sample_tests(cells, training, real_place, height, val_rng, None, split="val", per_class=c.val_per_class))
         return Plan(workspace, c, self.grid, tuple(cell for cell, _ in chosen), tuple(samples))
 
@@ -122,7 +122,7 @@ class Protocol(ProtocolSampling):
                 cells have captures.
         """
         c = self.config
-        rng = np.random.default_rng(c.seed)
+        rng, test_rng = stream(c.seed, "cells"), stream(c.seed, "test")
         xy = np.array([[p.x, p.y] for p in captures], dtype=np.float64).reshape(-1, 2)
         yaw = np.array([p.yaw for p in captures], dtype=np.float64)
         inside = shapely.contains_xy(self._free_tolerant, xy[:, 0], xy[:, 1])
@@ -152,7 +152,7 @@ class Protocol(ProtocolSampling):
             for o in range(c.orientations):
                 place = rank * c.orientations + o
                 pool = [k for k in by_class.get((cell, o), []) if k != train_index.get(place)]
-                for n, k in enumerate(sorted(rng.permutation(pool)[: c.test_per_class].tolist())):
+                for n, k in enumerate(sorted(test_rng.permutation(pool)[: c.test_per_class].tolist())):
                     samples.append(self._test_sample(place, cell, o, captures[k], distances[k], polygons, real_place, n, source=k))
         return Plan(workspace, c, self.grid, tuple(cell for cell, _ in chosen), tuple(samples))
 

@@ -31,10 +31,11 @@ class ProtocolGeometry:
     """The grid, visibility cones, cell assignment and canonical viewpoints of one floor plan
     and camera: what :class:`~ssga_bench.protocol.Protocol` draws its plan with."""
 
-    def __init__(self, floor_plan: FloorPlan, camera: Camera, config: ProtocolConfig | None = None) -> None:
+    def __init__(self, floor_plan: FloorPlan, camera: Camera, config: ProtocolConfig | None = None, grid: Grid | None = None) -> None:
+        """``grid``: the cells' grid, where the plan is not the one it was drawn on (default: the grid covering it)."""
         self.camera = camera
         self.config = config or ProtocolConfig()
-        self.grid = Grid.covering(floor_plan.bounds, self.config.cell_size)
+        self.grid = grid or Grid.covering(floor_plan.bounds, self.config.cell_size)
         self.centroids = self.grid.centroids()
         self.floor_plan = floor_plan
         self.segments = occluder_segments(floor_plan.occluders)

@@ -18,14 +18,16 @@ from ssga_bench.dataset import FITTED, Dataset
 from ssga_bench.evaluation import Report
 from ssga_bench.figures import birdseye, scene_graph_pictures
 from ssga_bench.fusion import Fusion
-from ssga_bench.io import atomic_write_bytes, write_png
+from ssga_bench.io import atomic_write_bytes, read_jsonl, write_png
 from ssga_bench.learned import Learned
 from ssga_bench.protocol import Sample
 from ssga_bench.queries import draw_queries, save_predictions
 from ssga_bench.scoring import dataset_identity
 from ssga_bench.timings import Timings
+from ssga_bench.training_plan import PSEUDO_VIEWS
 from ssga_bench.variant_training import VariantResult
 from ssga_core.data import Regions, View
+from ssga_core.geometry import Pose
 
 
 def heading_offset_deg(a: float, b: float) -> float:
@@ -104,7 +106,8 @@ def draw_for_the_page(experiment: Experiment, dataset: Dataset, cache: FeatureCa
     """The run page's pictures (``page.py``): the workspace map, test cameras by level, and the
     scene graphs of a few test views as the first variant with a parser cut them (its regions
     read back from the feature cache: nothing is parsed again)."""
-    write_png(out / "workspace.png", birdseye(dataset, colour_by="level"))
+    pseudo = [Pose(r["pose"]["x"], r["pose"]["y"], r["pose"]["yaw"]) for r in read_jsonl(out / PSEUDO_VIEWS)] if (out / PSEUDO_VIEWS).is_file() else []
+    write_png(out / "workspace.png", birdseye(dataset, colour_by="level", pseudo=pseudo))
     parsing = next((rv for rv in experiment.variants if "parser" in rv.stages), None)
     tests = dataset.split("test")
     if parsing is None or not tests:

@@ -24,6 +24,7 @@ from ssga_bench.cache import FeatureCache
 from ssga_bench.config import TrainingConfig
 from ssga_bench.dataset import Dataset
 from ssga_bench.execution import memo
+from ssga_bench.seeds import DRAWS
 from ssga_bench.gcn import load_gcn, save_gcn, train_gcn
 from ssga_bench.io import atomic_write_bytes, load_npy, load_npz, npz_bytes, read_json, warn, write_json
 from ssga_bench.matching import GraphMatcher
@@ -92,6 +93,7 @@ class Trained:
 def variant_key(rv: ResolvedVariant, training: TrainingConfig, dataset: Dataset, extra: str = "") -> str:
     spec = {
         "extra": extra,
+        "draws": DRAWS,
         "variant": str(rv.variant),
         "stages": {k: [s.cls.name, s.config.model_dump(mode="json", exclude=s.config.unkeyed())] for k, s in sorted(rv.stages.items())},
         "training": training.model_dump(mode="json", exclude=_unused_options(rv, training) | _unused_match_settings(rv, training) | training.unkeyed()),

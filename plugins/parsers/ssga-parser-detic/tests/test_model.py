@@ -184,7 +184,7 @@ def _image(seed: int = 0, size: int = 256) -> np.ndarray:
 
 def test_a_forward_pass_gives_well_formed_detections(net):
     classes = 30
-    net.set_vocabulary(torch.randn(classes, 512))
+    net.set_vocabulary(torch.randn(classes, 512, generator=torch.Generator().manual_seed(0)))  # its own draw: the test does not depend on the tests before it
     rgb = _image()
     # The mask head runs on every detection kept: 40 keep the test fast (Detic's default is 300).
     everything = detect(net, rgb, Settings(size=256, score_threshold=0.0, max_detections=40))

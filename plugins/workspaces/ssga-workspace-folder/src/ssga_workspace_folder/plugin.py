@@ -3,7 +3,7 @@
 The folder holds a ``captures.jsonl`` (one line per image), ScanNet's exported frames or a
 TUM RGB-D sequence (:mod:`.layouts`), and, if someone drew one, a ``floorplan.json``
 (:meth:`ssga_bench.workspace.FloorPlan.to_json`); without it the floor plan is derived
-from the captures' poses and depth (:mod:`.floorplan`). Every capture is checked before
+from the captures' poses and depth (:mod:`ssga_bench.seen_floor`). Every capture is checked before
 the workspace opens (:mod:`.workspace`, :mod:`.checks`). See this package's README for
 the formats.
 """

@@ -30,7 +30,7 @@ import numpy as np
 from ssga_core import Camera, InputError, Pose, View
 from ssga_bench import FloorPlan, ids_from_png16, read_json, read_png, read_rgb
 from ssga_workspace_folder.checks import BadFrame, Skips, check_depth_header, image_header
-from ssga_workspace_folder.floorplan import FloorEvidence
+from ssga_bench import FloorEvidence
 from ssga_workspace_folder.images import Intrinsics, read_depth, resample
 from ssga_workspace_folder.layouts import Folder, Frame, detect, read_folder, tum_intrinsics
 from ssga_workspace_folder.levelling import Levelling, find_floor, find_up, rotation_to_z, surfaces, up_vector

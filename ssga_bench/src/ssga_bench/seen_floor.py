@@ -1,4 +1,5 @@
-"""A floor plan derived from the captures, for a folder that has none drawn by hand.
+"""A floor plan of what views saw: for a folder of captures that has none drawn by hand, and
+for the training plan, which may know only what the robot's real views saw (never the map).
 
 Two kinds of evidence, on a grid of ``resolution`` (10 cm) over the floor plane:
 
@@ -17,7 +18,7 @@ Two kinds of evidence, on a grid of ``resolution`` (10 cm) over the floor plane:
   fall in it, so a stray depth pixel marks nothing.
 
 Free floor = (seen floor, small gaps closed, less what is near an obstacle) plus where
-the cameras went. See the package README for what this cannot know.
+the cameras went. What this cannot know: the folder workspace's README.
 """
 
 from __future__ import annotations
@@ -30,8 +31,9 @@ import numpy as np
 import shapely
 from shapely.geometry.base import BaseGeometry
 
-from ssga_core import Camera, InputError, Pose
-from ssga_bench import FloorPlan, grid_polygons
+from ssga_core.errors import InputError
+from ssga_core.geometry import Camera, Pose
+from ssga_bench.workspace import FloorPlan, grid_polygons
 
 
 @dataclass(frozen=True)
@@ -107,6 +109,7 @@ class FloorEvidence:
         self.floor_points: list[np.ndarray] = []
         self.obstacle_points: list[np.ndarray] = []
         self.occluder_points: list[np.ndarray] = []
+        self.sight: list[shapely.Polygon] = []
         self.views = 0
 
     def add(self, k: int, transform: np.ndarray, height: float, depth: np.ndarray | None) -> None:
@@ -122,6 +125,7 @@ class FloorEvidence:
         self.floor_points.append(points[np.abs(z) <= self.floor_tolerance, :2])
         self.obstacle_points.append(points[(z > self.floor_tolerance) & (z <= height + self.band), :2])
         self.occluder_points.append(points[np.abs(z - self.camera_height) <= self.band, :2])
+        self.sight.append(_sight(transform[:2, 3], self.floor_points[-1], self.obstacle_points[-1], camera.hfov_deg))
 
     def plan(
         self,
@@ -132,8 +136,15 @@ class FloorEvidence:
         clearance: float = 0.25,
         max_step: float = 1.0,
         min_hits: int = 2,
+        free_in_sight: bool = False,
+        presumed_free: BaseGeometry | None = None,
     ) -> DerivedPlan:
-        """The floor plan of the captures at ``poses`` (in order) and the depth added."""
+        """The floor plan of the captures at ``poses`` (in order) and the depth added.
+
+        ``free_in_sight``: the floor between each camera and the first obstacle its depth saw in
+        each direction is free too, though the camera saw no floor there (the floor just ahead of
+        a level camera is below its field of view). ``presumed_free``: floor taken as free, though no
+        camera saw it, less what is near a seen obstacle."""
         if not poses:
             raise InputError(f"{self.source}: no capture poses to derive a floor plan from")
         xy = np.array([[p.x, p.y] for p in poses], dtype=np.float64)
@@ -146,6 +157,10 @@ class FloorEvidence:
         seen_floor = seen_floor.buffer(resolution, join_style="mitre").buffer(-resolution, join_style="mitre")
         obstacles = grid.polygons(grid.hits(self.obstacle_points) >= min_hits)
         occluders = grid.polygons(grid.hits(self.occluder_points) >= min_hits).difference(swept)
+        if free_in_sight:
+            seen_floor = shapely.union(seen_floor, shapely.union_all(self.sight))
+        if presumed_free is not None:
+            seen_floor = shapely.union(seen_floor, presumed_free)
         free = shapely.union(seen_floor.difference(obstacles.buffer(clearance)), swept)
         # Staircase outlines simplified to the grid's own precision: fewer edges for every visibility ray to test.
         occluders = occluders.simplify(resolution / 2.0)
@@ -158,6 +173,33 @@ def _swept(xy: np.ndarray, radius: float, max_step: float) -> BaseGeometry:
     steps = np.linalg.norm(np.diff(xy, axis=0), axis=1)
     parts += [shapely.LineString(xy[k : k + 2]) for k in np.flatnonzero((steps > 0) & (steps < max_step))]
     return shapely.union_all(shapely.buffer(parts, radius, quad_segs=4))
+
+
+def _sight(origin: np.ndarray, floor: np.ndarray, obstacles: np.ndarray, hfov_deg: float, bins: int = 64) -> shapely.Polygon:
+    """The floor a camera at ``origin`` saw is clear: in each of ``bins`` directions over its field of
+    view, up to the nearest obstacle point, or the farthest floor point where it saw no obstacle."""
+    everything = np.concatenate([floor, obstacles]) - origin
+    if not len(everything):
+        return shapely.Polygon()
+    forward = math.atan2(everything[:, 1].mean(), everything[:, 0].mean())
+    half = math.radians(hfov_deg) / 2
+
+    def bin_of(xy: np.ndarray) -> np.ndarray:
+        turn = np.remainder(np.arctan2(xy[:, 1], xy[:, 0]) - forward + math.pi, 2 * math.pi) - math.pi
+        return np.clip(((turn + half) / (2 * half) * bins).astype(np.int64), 0, bins - 1)
+
+    reach = np.zeros(bins)
+    np.maximum.at(reach, bin_of(floor - origin), np.linalg.norm(floor - origin, axis=1))
+    nearest = np.full(bins, np.inf)
+    np.minimum.at(nearest, bin_of(obstacles - origin), np.linalg.norm(obstacles - origin, axis=1))
+    reach = np.where(np.isfinite(nearest), nearest, reach)
+    edges = forward - half + np.arange(bins + 1) * (2 * half / bins)
+    corners = [origin]
+    for b in range(bins):
+        for angle in (edges[b], edges[b + 1]):
+            corners.append(origin + reach[b] * np.array([math.cos(angle), math.sin(angle)]))
+    fan = shapely.Polygon(corners).buffer(0)
+    return fan if fan.geom_type == "Polygon" else _polygonal(fan)
 
 
 def _world_points(transform: np.ndarray, camera: Camera, depth: np.ndarray, stride: int, max_depth: float) -> np.ndarray:
