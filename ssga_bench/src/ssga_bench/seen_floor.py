@@ -109,7 +109,7 @@ class FloorEvidence:
         self.floor_points: list[np.ndarray] = []
         self.obstacle_points: list[np.ndarray] = []
         self.occluder_points: list[np.ndarray] = []
-        self.sight: list[shapely.Polygon] = []
+        self.origins: list[np.ndarray] = []
         self.views = 0
 
     def add(self, k: int, transform: np.ndarray, height: float, depth: np.ndarray | None) -> None:
@@ -125,7 +125,7 @@ class FloorEvidence:
         self.floor_points.append(points[np.abs(z) <= self.floor_tolerance, :2])
         self.obstacle_points.append(points[(z > self.floor_tolerance) & (z <= height + self.band), :2])
         self.occluder_points.append(points[np.abs(z - self.camera_height) <= self.band, :2])
-        self.sight.append(_sight(transform[:2, 3], self.floor_points[-1], self.obstacle_points[-1], camera.hfov_deg))
+        self.origins.append(transform[:2, 3])
 
     def plan(
         self,
@@ -158,7 +158,8 @@ class FloorEvidence:
         obstacles = grid.polygons(grid.hits(self.obstacle_points) >= min_hits)
         occluders = grid.polygons(grid.hits(self.occluder_points) >= min_hits).difference(swept)
         if free_in_sight:
-            seen_floor = shapely.union(seen_floor, shapely.union_all(self.sight))
+            fans = [_sight(o, f, b, self.camera.hfov_deg) for o, f, b in zip(self.origins, self.floor_points, self.obstacle_points)]
+            seen_floor = shapely.union(seen_floor, shapely.union_all(fans))
         if presumed_free is not None:
             seen_floor = shapely.union(seen_floor, presumed_free)
         free = shapely.union(seen_floor.difference(obstacles.buffer(clearance)), swept)
